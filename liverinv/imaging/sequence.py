@@ -1,0 +1,133 @@
+"""Ultrasound sequences of a simulated indentation: the truth motion imaged as speckle.
+
+Two ways to make frame k from the truth displacement u_k at the mesh nodes:
+
+``warp``
+    The paper's way (section 2.3): the reference tissue image is warped by the deformation,
+    ``I_k(x) = I_0(X)`` with ``x = X + u_k(X)``. X(x) is found per voxel by the fixed-point
+    iteration ``X <- x - u_k(X)``, with u_k resampled on the voxel grid (mesh hat functions
+    inside the tissue, nearest tissue value outside) and interpolated trilinearly. The tissue's
+    complex envelope is warped with cubic splines; the background is static.
+``scatter``
+    Physically: the tissue scatterers move with the tissue, ``x_s = X_s + u_k(X_s)``, and the
+    frame is rendered again. Speckle then changes as in a real probe (axial phase, local
+    strain), so no tracker can be exact on it.
+
+Outside the tissue the background has its own texture and does not move: the stand-off pad
+below the tissue (z < 0, weaker speckle) and water elsewhere (almost anechoic). Options:
+complex receiver noise (`noise_db` relative to the tissue reference level, independent per
+frame) and, for ``scatter``, partial speckle decorrelation (`decorrelation`, the fraction of
+each scatterer's complex amplitude renewed at every frame).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from .grid import ImageGrid
+from .speckle import Transducer, log_compress, random_scatterers, render_iq
+from .weights import VoxelWeights
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ImagingOptions", "SpeckleScene", "inverse_map"]
+
+
+@dataclass
+class ImagingOptions:
+    """How the sequence is imaged (SI units; see module docstring)."""
+
+    mode: str = "warp"                 # "warp" or "scatter"
+    seed: int = 0
+    scatterers_per_cell: float = 5.0
+    pad_echogenicity: float = 0.3      # amplitude std relative to tissue
+    water_echogenicity: float = 0.01
+    noise_db: float | None = None      # receiver noise level relative to the tissue reference
+    decorrelation: float = 0.0         # scatter mode: fraction of amplitude renewed per frame
+    transducer: Transducer = field(default_factory=Transducer)
+
+    def __post_init__(self):
+        if self.mode not in ("warp", "scatter"):
+            raise ValueError(f"imaging mode must be 'warp' or 'scatter', not {self.mode!r}")
+        if not 0.0 <= self.decorrelation <= 1.0:
+            raise ValueError("decorrelation must lie in [0, 1]")
+
+
+def _sample_grid(field_grid: np.ndarray, v: np.ndarray, order: int = 1) -> np.ndarray:
+    """Values of a (*shape, c) grid field at continuous voxel coordinates v (m, 3)."""
+    return np.stack([ndimage.map_coordinates(field_grid[..., c], v.T, order=order, mode="nearest")
+                     for c in range(field_grid.shape[-1])], axis=1)
+
+
+def inverse_map(u_grid_vox: np.ndarray, x_vox: np.ndarray, iterations: int = 6) -> np.ndarray:
+    """Reference position X (voxels) of current positions x (voxels), ``x = X + u(X)``, by the
+    fixed-point iteration ``X <- x - u(X)`` (converges for displacement gradients < 1)."""
+    X = x_vox.copy()
+    for _ in range(iterations):
+        X = x_vox - _sample_grid(u_grid_vox, X)
+    return X
+
+
+class SpeckleScene:
+    """The tissue, its surroundings and the probe: renders frames for nodal displacements.
+
+    Parameters
+    ----------
+    weights : VoxelWeights
+        Hat-function weights of the truth mesh on the image grid (locates the tissue).
+    options : ImagingOptions
+    """
+
+    def __init__(self, weights: VoxelWeights, options: ImagingOptions):
+        self.vw, self.opt, self.grid = weights, options, weights.grid
+        g, tr = self.grid, options.transducer
+        self.rng = np.random.default_rng(options.seed)
+        margin = np.asarray(tr.sigma_m) * (tr.truncate_sigmas + 1)
+        corners = g.to_m(np.array([[i, j, k] for i in (0, g.shape[0] - 1)
+                                   for j in (0, g.shape[1] - 1) for k in (0, g.shape[2] - 1)]))
+        lo, hi = corners.min(0) - margin.max(), corners.max(0) + margin.max()
+        pos, amp = random_scatterers(self.rng, lo, hi, options.scatterers_per_cell, tr)
+        mask = self.vw.mask().astype(np.float32)
+        in_tissue = ndimage.map_coordinates(mask, g.to_vox(pos).T, order=1, mode="nearest") > 0.5
+        # scatterers beyond the grid faces: extend the tissue test by the nearest voxel
+        self.tissue_pos, self.tissue_amp = pos[in_tissue], amp[in_tissue].astype(complex)
+        bg_pos, bg_amp = pos[~in_tissue], amp[~in_tissue]
+        below = bg_pos[:, 2] < 0.0
+        bg_amp = bg_amp * np.where(below, options.pad_echogenicity, options.water_echogenicity)
+        self.bg_iq = render_iq(g, bg_pos, bg_amp, tr)
+        self.ref_iq = render_iq(g, self.tissue_pos, self.tissue_amp.real, tr)
+        self.reference_level = float(np.percentile(np.abs(self.ref_iq.ravel()[self.vw.voxels]), 99.0))
+        if options.mode == "warp":
+            self._coef = [ndimage.spline_filter(p, order=3, output=np.float64)
+                          for p in (self.ref_iq.real, self.ref_iq.imag)]
+        log.info("speckle scene: %d tissue and %d background scatterers", len(self.tissue_pos),
+                 len(bg_pos))
+
+    def frame(self, u_nodes_m: np.ndarray) -> np.ndarray:
+        """B-mode volume (float32 in [0, 1]) for nodal displacements `u_nodes_m` (n, 3) m."""
+        g, opt = self.grid, self.opt
+        u_grid = self.vw.to_grid(g.vec_to_vox(u_nodes_m))          # voxels, image axes
+        if opt.mode == "warp":
+            x = np.stack(np.unravel_index(np.arange(g.size), g.shape), 1).astype(float)
+            X = inverse_map(u_grid, x)
+            iq = (ndimage.map_coordinates(self._coef[0], X.T, order=3, prefilter=False, mode="nearest")
+                  + 1j * ndimage.map_coordinates(self._coef[1], X.T, order=3, prefilter=False,
+                                                 mode="nearest")).reshape(g.shape)
+        else:
+            if opt.decorrelation > 0:
+                new = self.rng.standard_normal(len(self.tissue_amp)) * np.exp(
+                    2j * np.pi * self.rng.random(len(self.tissue_amp)))
+                self.tissue_amp = (np.sqrt(1 - opt.decorrelation) * self.tissue_amp
+                                   + np.sqrt(opt.decorrelation) * new)
+            v = g.to_vox(self.tissue_pos)
+            xs = g.to_m(v + _sample_grid(u_grid, v))
+            iq = render_iq(g, xs, self.tissue_amp, opt.transducer)
+        iq = iq + self.bg_iq
+        if opt.noise_db is not None:
+            s = self.reference_level * 10 ** (opt.noise_db / 20) / np.sqrt(2)
+            iq = iq + s * (self.rng.standard_normal(g.shape) + 1j * self.rng.standard_normal(g.shape))
+        return log_compress(iq, self.reference_level, opt.transducer.dynamic_range_db)
