@@ -195,7 +195,8 @@ def run_felupe(mesh_path, C1, C2, D1, depth=9.2e-3, steps=46, unload=True,
         ``depth`` (n+1,) punch displacement d >= 0 (m), starting with 0; ``force`` (n+1,)
         F = -sum of footprint z reactions (N, positive compressive); ``iterations`` (n+1,)
         Newton iterations per converged step (0 for the initial state); ``loading`` (n+1,)
-        True on the loading branch; ``newton_iterations`` total (plus ``maxiter`` for
+        True on the loading branch; ``min_J`` (n+1,) smallest det F over the quadrature
+        points; ``newton_iterations`` total (plus ``maxiter`` for
         each failed attempt); ``step_cuts``; ``wall_time_s``; ``force_4p6mm`` and
         ``force_9p2mm`` (F on loading at d = 4.6e-3 and 9.2e-3 m, NaN if not reached);
         ``n_nodes``, ``n_cells``, ``n_footprint_nodes``, ``params``, ``quadrature``,
@@ -231,7 +232,7 @@ def run_felupe(mesh_path, C1, C2, D1, depth=9.2e-3, steps=46, unload=True,
 
     ramp = np.linspace(0.0, depth, steps + 1)[1:]
     path = np.concatenate([ramp, ramp[::-1][1:], [0.0]]) if unload else ramp
-    d_out, f_out, it_out, load_out = [0.0], [0.0], [0], [True]
+    d_out, f_out, it_out, load_out, minj_out = [0.0], [0.0], [0], [True], [1.0]
     n_cuts = n_failed_its = 0
     completed = True
     kw = {} if tol is None else {"tol": tol}
@@ -267,7 +268,10 @@ def run_felupe(mesh_path, C1, C2, D1, depth=9.2e-3, steps=46, unload=True,
             f_out.append(-float(np.sum(res.fun[zdofs])))
             it_out.append(res.iterations)
             load_out.append(k < steps)
-            logger.info("d = %.4e m  F = %.6f N  (%d iterations)", d, f_out[-1], res.iterations)
+            minj_out.append(float(np.linalg.det(
+                np.moveaxis(field.extract()[0], (0, 1), (-2, -1))).min()))
+            logger.info("d = %.4e m  F = %.6f N  min J = %.4f  (%d iterations)", d, f_out[-1],
+                        minj_out[-1], res.iterations)
         if not completed:
             break
     wall = time.perf_counter() - t0
@@ -289,6 +293,7 @@ def run_felupe(mesh_path, C1, C2, D1, depth=9.2e-3, steps=46, unload=True,
         "newton_iterations": int(np.sum(it_out)) + n_failed_its,
         "step_cuts": n_cuts,
         "loading": loading,
+        "min_J": np.array(minj_out),
         "wall_time_s": wall,
         "force_4p6mm": on_loading(4.6e-3),
         "force_9p2mm": on_loading(9.2e-3),
