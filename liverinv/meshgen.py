@@ -8,10 +8,10 @@ the contact stress is singular. Physical groups, as in the benchmark meshes: vol
 
 Examples
 --------
->>> from liverinv.meshgen import generate_indentation_mesh, summarize_mesh
->>> path = generate_indentation_mesh("/tmp/cyl.msh", **PRESETS["coarse"])  # doctest: +SKIP
+>>> from liverinv.meshgen import PRESETS, generate_indentation_mesh, summarize_mesh
+>>> path = generate_indentation_mesh("/tmp/cyl.msh", **PRESETS["fine"])  # doctest: +SKIP
 >>> summarize_mesh(path)["n_tetra10"]  # doctest: +SKIP
-818
+2769
 
 Command line::
 
@@ -39,14 +39,13 @@ __all__ = ["generate_indentation_mesh", "summarize_mesh", "tet10_volumes", "tri6
 PHYSICAL_GROUPS = {"bottom": (2, 1), "side": (2, 2), "top_free": (2, 3), "footprint": (2, 4),
                    "tissue": (3, 5)}
 
-#: Size presets (m) comparable to the benchmark meshes: ``coarse`` ~ cylinder_coarse.msh
-#: (819 tet10), ``fine`` ~ cylinder_fine.msh (2798 tet10).
+#: Size presets (m) comparable to the benchmark meshes: ``coarse`` (the default; 1499 nodes,
+#: 811 tet10, cf. cylinder_coarse.msh 1490 / 819) and ``fine`` (4676 nodes, 2769 tet10, cf.
+#: cylinder_fine.msh 4589 / 2798), with gmsh 4.15.
 PRESETS = {
     "coarse": {"h_far": 0.022, "h_rim": 0.0016},
     "fine": {"h_far": 0.012, "h_rim": 0.0012},
 }
-
-_GEOM_TOL = 1e-9
 
 
 def _check_positive(**kwargs):
