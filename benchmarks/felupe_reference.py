@@ -36,8 +36,8 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["reduced_polynomial_umat", "run_felupe", "QUADRATURES"]
 
-#: Quadrature name -> order of felupe's TetrahedronQuadrature (4, 5 and 15 points).
-QUADRATURES = {"tet10-4pt": 2, "tet10-5pt": 3, "tet10-15pt": 5}
+#: Quadrature name -> order of felupe's TetrahedronQuadrature (4, 5 and 14 points).
+QUADRATURES = {"tet10-4pt": 2, "tet10-5pt": 3, "tet10-14pt": 5}
 
 #: Benchmark geometry (m).
 H_DEFAULT = 0.0303
@@ -169,7 +169,7 @@ def run_felupe(mesh_path, C1, C2, D1, depth=9.2e-3, steps=46, unload=True,
         Equal displacement increments from 0 to ``depth`` (and as many back if ``unload``).
     unload : bool
         Also ramp back to d = 0.
-    quadrature : {"tet10-4pt", "tet10-5pt", "tet10-15pt"}
+    quadrature : {"tet10-4pt", "tet10-5pt", "tet10-14pt"}
         Tetrahedron quadrature rule.
     H, a : float
         Cylinder height and punch radius (m): footprint nodes are z = H, r <= a + 1e-9.
