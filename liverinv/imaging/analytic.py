@@ -54,3 +54,24 @@ def analytic_run(points, cells, times, depth_m, **field_kw) -> xr.Dataset:
          "cells": (("element", "local"), np.asarray(cells, np.int64))},
         coords={"time": ("time", times, {"units": "s"}), "component": ["x", "y", "z"]},
         attrs={"law": "analytic", "params": json.dumps(field_kw)})
+
+
+def box_tet10(lo_m, hi_m, n: int):
+    """A structured tet10 mesh of the box [lo_m, hi_m] with n cubes per side (6 Kuhn tets per
+    cube, mid-edge nodes added); returns (points (N, 3), cells (ne, 10)) in meshio order
+    (corners, then mid-edges of 01, 12, 20, 03, 13, 23). For tests and small examples."""
+    lo, hi = np.asarray(lo_m, float), np.asarray(hi_m, float)
+    ax = [np.linspace(lo[a], hi[a], n + 1) for a in range(3)]
+    pts = np.stack(np.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3)
+    idx = np.arange((n + 1) ** 3).reshape(n + 1, n + 1, n + 1)
+    c = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    corner = lambda d: idx[c[:, 0] + d[0], c[:, 1] + d[1], c[:, 2] + d[2]]
+    v = [corner(((k >> 0) & 1, (k >> 1) & 1, (k >> 2) & 1)) for k in range(8)]
+    kuhn = [(0, 1, 3, 7), (0, 1, 5, 7), (0, 2, 3, 7), (0, 2, 6, 7), (0, 4, 5, 7), (0, 4, 6, 7)]
+    tets = np.concatenate([np.stack([v[a], v[b], v[c_], v[d]], 1) for a, b, c_, d in kuhn])
+    edges = [(0, 1), (1, 2), (2, 0), (0, 3), (1, 3), (2, 3)]
+    e = np.sort(np.stack([tets[:, [a, b]] for a, b in edges], 1), axis=2)   # (ne, 6, 2)
+    uniq, inv = np.unique(e.reshape(-1, 2), axis=0, return_inverse=True)
+    mid = 0.5 * (pts[uniq[:, 0]] + pts[uniq[:, 1]])
+    cells = np.concatenate([tets, len(pts) + inv.reshape(-1, 6)], axis=1)
+    return np.concatenate([pts, mid]), cells

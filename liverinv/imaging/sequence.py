@@ -3,11 +3,12 @@
 Two ways to make frame k from the truth displacement u_k at the mesh nodes:
 
 ``warp``
-    The paper's way (section 2.3): the reference tissue image is warped by the deformation,
-    ``I_k(x) = I_0(X)`` with ``x = X + u_k(X)``. X(x) is found per voxel by the fixed-point
-    iteration ``X <- x - u_k(X)``, with u_k resampled on the voxel grid (mesh hat functions
-    inside the tissue, nearest tissue value outside) and interpolated trilinearly. The tissue's
-    complex envelope is warped with cubic splines; the background is static.
+    The paper's way (section 2.3): the reference B-mode volume is warped by the deformation,
+    ``I_k(x) = I_0(X)`` with ``x = X + u_k(X)``, by cubic B-spline interpolation. X(x) is found
+    per voxel by the fixed-point iteration ``X <- x - u_k(X)``, with u_k resampled on the
+    voxel grid (mesh hat functions inside the tissue, nearest tissue value outside) and
+    interpolated trilinearly. Voxels whose X lies outside the reference tissue show the
+    static background instead.
 ``scatter``
     Physically: the tissue scatterers move with the tissue, ``x_s = X_s + u_k(X_s)``, and the
     frame is rendered again. Speckle then changes as in a real probe (axial phase, local
@@ -15,9 +16,11 @@ Two ways to make frame k from the truth displacement u_k at the mesh nodes:
 
 Outside the tissue the background has its own texture and does not move: the stand-off pad
 below the tissue (z < 0, weaker speckle) and water elsewhere (almost anechoic). Options:
-complex receiver noise (`noise_db` relative to the tissue reference level, independent per
-frame) and, for ``scatter``, partial speckle decorrelation (`decorrelation`, the fraction of
-each scatterer's complex amplitude renewed at every frame).
+additive Gaussian noise on the B-mode image (`bmode_noise`, std in B-mode units, both modes),
+complex receiver noise before envelope detection (`noise_db` relative to the tissue reference
+level, ``scatter`` only), and for ``scatter`` partial speckle decorrelation
+(`decorrelation`, the fraction of each scatterer's complex amplitude renewed every frame).
+All noise is independent between frames.
 """
 
 from __future__ import annotations
@@ -46,7 +49,8 @@ class ImagingOptions:
     scatterers_per_cell: float = 5.0
     pad_echogenicity: float = 0.3      # amplitude std relative to tissue
     water_echogenicity: float = 0.01
-    noise_db: float | None = None      # receiver noise level relative to the tissue reference
+    noise_db: float | None = None      # scatter mode: receiver noise relative to tissue level
+    bmode_noise: float = 0.0           # std of additive noise on the B-mode image (0..1 units)
     decorrelation: float = 0.0         # scatter mode: fraction of amplitude renewed per frame
     transducer: Transducer = field(default_factory=Transducer)
 
@@ -55,6 +59,11 @@ class ImagingOptions:
             raise ValueError(f"imaging mode must be 'warp' or 'scatter', not {self.mode!r}")
         if not 0.0 <= self.decorrelation <= 1.0:
             raise ValueError("decorrelation must lie in [0, 1]")
+        if self.mode == "warp" and (self.noise_db is not None or self.decorrelation > 0):
+            raise ValueError("noise_db and decorrelation apply to mode 'scatter'; "
+                             "use bmode_noise with mode 'warp'")
+        if self.bmode_noise < 0:
+            raise ValueError("bmode_noise must be >= 0")
 
 
 def _sample_grid(field_grid: np.ndarray, v: np.ndarray, order: int = 1) -> np.ndarray:
@@ -102,8 +111,11 @@ class SpeckleScene:
         self.ref_iq = render_iq(g, self.tissue_pos, self.tissue_amp.real, tr)
         self.reference_level = float(np.percentile(np.abs(self.ref_iq.ravel()[self.vw.voxels]), 99.0))
         if options.mode == "warp":
-            self._coef = [ndimage.spline_filter(p, order=3, output=np.float64)
-                          for p in (self.ref_iq.real, self.ref_iq.imag)]
+            self.ref_bmode = log_compress(self.ref_iq + self.bg_iq, self.reference_level,
+                                          tr.dynamic_range_db)
+            self._coef = ndimage.spline_filter(self.ref_bmode, order=3, output=np.float32,
+                                               mode="mirror")
+            self._mask = mask
         log.info("speckle scene: %d tissue and %d background scatterers", len(self.tissue_pos),
                  len(bg_pos))
 
@@ -113,10 +125,17 @@ class SpeckleScene:
         u_grid = self.vw.to_grid(g.vec_to_vox(u_nodes_m))          # voxels, image axes
         if opt.mode == "warp":
             x = np.stack(np.unravel_index(np.arange(g.size), g.shape), 1).astype(float)
-            X = inverse_map(u_grid, x)
-            iq = (ndimage.map_coordinates(self._coef[0], X.T, order=3, prefilter=False, mode="nearest")
-                  + 1j * ndimage.map_coordinates(self._coef[1], X.T, order=3, prefilter=False,
-                                                 mode="nearest")).reshape(g.shape)
+            moving = np.abs(u_grid).max(axis=-1).ravel() > 1e-6
+            X = inverse_map(u_grid, x[moving])
+            tissue = ndimage.map_coordinates(self._mask, X.T, order=1, mode="nearest") > 0.5
+            out = self.ref_bmode.ravel().copy()
+            idx = np.flatnonzero(moving)[tissue]
+            out[idx] = ndimage.map_coordinates(self._coef, X[tissue].T, order=3, prefilter=False,
+                                               mode="mirror")
+            out = out.reshape(g.shape)
+            if opt.bmode_noise > 0:
+                out = out + opt.bmode_noise * self.rng.standard_normal(g.shape)
+            return np.clip(out, 0.0, 1.0).astype(np.float32)
         else:
             if opt.decorrelation > 0:
                 new = self.rng.standard_normal(len(self.tissue_amp)) * np.exp(
@@ -130,4 +149,7 @@ class SpeckleScene:
         if opt.noise_db is not None:
             s = self.reference_level * 10 ** (opt.noise_db / 20) / np.sqrt(2)
             iq = iq + s * (self.rng.standard_normal(g.shape) + 1j * self.rng.standard_normal(g.shape))
-        return log_compress(iq, self.reference_level, opt.transducer.dynamic_range_db)
+        out = log_compress(iq, self.reference_level, opt.transducer.dynamic_range_db)
+        if opt.bmode_noise > 0:
+            out = np.clip(out + opt.bmode_noise * self.rng.standard_normal(g.shape), 0, 1)
+        return out.astype(np.float32)

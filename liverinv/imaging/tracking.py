@@ -61,6 +61,7 @@ class TrackOptions:
     min_coverage: float = 0.5
     confidence: str = "sum"
     regularization: float = 1e-4
+    presmooth_vox: float = 0.0
 
     def __post_init__(self):
         if self.confidence not in ("sum", "mean"):
@@ -106,6 +107,8 @@ class NodalTracker:
 
     def _prepare(self, volume):
         vol = np.asarray(volume, np.float32)
+        if self.opt.presmooth_vox > 0:
+            vol = ndimage.gaussian_filter(vol, self.opt.presmooth_vox)
         coef = ndimage.spline_filter(vol, order=3, output=np.float32, mode="mirror")
         grads = np.gradient(vol)
         return coef, grads
@@ -127,44 +130,57 @@ class NodalTracker:
         opt = self.opt
         coef, grads = self._prepare(volume)
         v = self.v.copy() if opt.warm_start else np.zeros((self.n, 3))
-        base = self.Xa + self.vw.interpolate(self.U)
         W = self.vw.W
-        last = np.zeros_like(v)
+        rows, cols, w = self._pairs
+        base = self.Xa + self.vw.interpolate(self.U)          # voxels at frame k
+        ok0 = self.valid
+        g = self.G * ok0[:, None]
+        prod = np.empty((len(g), 6))
+        for q, (a, b) in enumerate(_PAIRS):
+            prod[:, q] = g[:, a] * g[:, b]
+        S = W @ prod
+        A = S[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+        tr = np.trace(A, axis1=1, axis2=2)
+        floor = 1e-9 * (tr.max() if tr.max() > 0 else 1.0)
+        A = A + (opt.regularization * tr + floor)[:, None, None] * np.eye(3)
+        Ainv = np.linalg.inv(A)
+        cover = (W @ ok0.astype(float)) / np.maximum(self.w_total, 1e-300)
+        node_pos = self.node_vox + self.U
+        in_view = np.all((node_pos >= 0) & (node_pos <= self.shape - 1), axis=1)
+        live = (cover >= opt.min_coverage) & in_view
+        gp = g[cols] * w[:, None]                             # weighted gradient per pair
+        Jp = self.J[cols]
         for it in range(opt.max_iterations):
-            pos = base + self.vw.interpolate(v)
-            J, G, valid = self._sample(coef, grads, pos)
-            ok = valid & self.valid
-            g = 0.5 * (G + self.G) * ok[:, None]
-            dI = (J - self.J) * ok
-            prod = np.empty((len(dI), 9))
-            for q, (a, b) in enumerate(_PAIRS):
-                prod[:, q] = g[:, a] * g[:, b]
-            prod[:, 6:] = g * dI[:, None]
-            S = W @ prod
-            A = S[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
-            tr = np.trace(A, axis1=1, axis2=2)
-            lam = opt.regularization * np.median(tr[tr > 0]) if np.any(tr > 0) else 1.0
-            A = A + lam * np.eye(3)
-            delta = np.linalg.solve(A, -S[:, 6:, None])[..., 0]
+            # each node's neighbourhood translated by the node's own estimate (A.2)
+            pos = base[cols] + v[rows]
+            inside = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
+            J1 = ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror")
+            dI = (J1 - Jp) * inside
+            b = np.stack([np.bincount(rows, gp[:, j] * dI, minlength=self.n) for j in range(3)], 1)
+            delta = -np.einsum("nij,nj->ni", Ainv, b)
             v = v + delta
-            last = delta
-            cover = (W @ ok.astype(float)) / np.maximum(self.w_total, 1e-300)
-            live = cover >= opt.min_coverage
             big = np.abs(delta[live]).max() if live.any() else 0.0
             if big < opt.tol_vox:
                 break
         self.iterations = it + 1
-        # confidence, Eq. A.4, from the final gradients
+        # confidence, Eq. A.4
         c = W @ np.abs(g)
         if opt.confidence == "mean":
-            c = c / np.maximum(W @ ok.astype(float), 1e-300)[:, None]
-        node_pos = self.node_vox + self.U
-        in_view = np.all((node_pos >= 0) & (node_pos <= self.shape - 1), axis=1)
-        c[~(live & in_view)] = 0.0
+            c = c / np.maximum(W @ ok0.astype(float), 1e-300)[:, None]
+        c[~live] = 0.0
         cmax = c.max()
         c = c / cmax if cmax > 0 else c
-        # the accumulated motion where frame k+1 was actually sampled (consistent with J)
-        self.U = self.U + v - last
-        self.J, self.G, self.valid = J, G, valid
+        v[cover <= 0] = 0.0
+        # frame k+1 where the material now is: start of the next pair
+        self.U = self.U + v
+        pos = self.Xa + self.vw.interpolate(self.U)
+        self.J, self.G, self.valid = self._sample(coef, grads, pos)
         self.v = v
         return v, c
+
+    @property
+    def _pairs(self):
+        if not hasattr(self, "_pairs_cache"):
+            Wc = self.vw.W.tocoo()
+            self._pairs_cache = (Wc.row.astype(np.int64), Wc.col.astype(np.int64), Wc.data)
+        return self._pairs_cache
