@@ -1,0 +1,167 @@
+"""The indentation boundary-value problem: a tissue body, a rigid flat punch, a support.
+
+Unknowns are the free nodal displacements plus one punch depth d (positive into the tissue).
+Footprint nodes follow the punch: u_z = -d (frictionless: u_x, u_y free; bonded: u_x = u_y = 0).
+The bottom is fixed (u = 0) or sliding (u_z = 0, plus the three rigid-body constraints of the
+plane: u_x = u_y = 0 at the bottom node nearest the axis, u_y = 0 at the bottom node farthest
+along +x). The reduced residual's punch entry is the indenter force (positive compressive)
+minus the applied force.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from .assembly import ReducedAssembler
+from .material import QLVState, first_elasticity, hyperelastic_split, relaxation_factors
+from .space import Space
+
+__all__ = ["Indentation", "Evaluation"]
+
+log = logging.getLogger(__name__)
+
+PUNCH_CONTACTS = ("frictionless", "bonded")
+SUPPORTS = ("fixed", "sliding")
+
+
+@dataclass
+class Evaluation:
+    r: np.ndarray           # reduced internal force (punch entry: indenter force)
+    K: object               # reduced tangent (CSR) or None
+    S0_iso: np.ndarray
+    S0_vol: np.ndarray
+    J_min: float
+
+
+class Indentation:
+    """Finite-strain indentation model on a tet10 space.
+
+    Parameters
+    ----------
+    space : Space
+    params : dict of parameter name -> scalar or (ne,) array (per element), as resolved by
+        `liverinv.laws.Law.resolve` (C1, C2, D1, D2, g1, tau_g1, k1, tau_k1).
+    punch : "frictionless" or "bonded"
+    support : "fixed" or "sliding"
+    """
+
+    def __init__(self, space: Space, params: dict, punch="frictionless", support="fixed"):
+        if punch not in PUNCH_CONTACTS:
+            raise ValueError(f"punch contact must be one of {PUNCH_CONTACTS}, not {punch!r}")
+        if support not in SUPPORTS:
+            raise ValueError(f"support must be one of {SUPPORTS}, not {support!r}")
+        self.space, self.punch, self.support = space, punch, support
+        mesh = space.mesh
+        n = mesh.n_nodes
+        self.footprint = mesh.nodes("footprint")
+        bottom = mesh.nodes("bottom")
+        fixed = np.zeros((n, 3), dtype=bool)
+        if support == "fixed":
+            fixed[bottom] = True
+        else:
+            fixed[bottom, 2] = True
+            X = mesh.points[bottom]
+            centre = bottom[np.argmin(np.hypot(X[:, 0], X[:, 1]))]
+            fixed[centre, :2] = True
+            fixed[bottom[np.argmax(X[:, 0])], 1] = True
+        tied = np.zeros((n, 3), dtype=bool)
+        tied[self.footprint, 2] = True
+        if punch == "bonded":
+            fixed[self.footprint, :2] = True
+        fixed[tied] = False  # footprint on the bottom cannot happen; keep the tie
+        free = ~fixed & ~tied
+        index = -np.ones(3 * n, dtype=np.int64)
+        n_free = int(free.sum())
+        index[free.ravel()] = np.arange(n_free)
+        index[tied.ravel()] = n_free
+        sign = np.ones(3 * n)
+        sign[tied.ravel()] = -1.0
+        self.n_free = n_free
+        self.punch_index = n_free
+        self.n_red = n_free + 1
+        self.asm = ReducedAssembler(space.edofs, index, sign, self.n_red)
+        self.punch_positions = self.asm.positions(row=self.punch_index, col=self.punch_index)
+        self.punch_diag = np.nonzero((self.asm.rows[self.punch_positions] == self.punch_index)
+                                     & (self.asm.indices[self.punch_positions] == self.punch_index))[0]
+        self.set_params(params)
+
+    # -- material ----------------------------------------------------------------------
+    def set_params(self, params: dict):
+        """Set material parameters (scalars or per-element arrays)."""
+        ne = self.space.mesh.n_elements
+        def col(v):
+            v = np.asarray(v, dtype=float)
+            return v.reshape(ne, 1) if v.ndim == 1 else v
+        self.params = dict(params)
+        p = {k: col(v) for k, v in params.items() if k in ("C1", "C2", "D1", "D2", "g1", "tau_g1", "k1", "tau_k1")}
+        self._C1, self._C2, self._D1 = p["C1"], p["C2"], p["D1"]
+        D2 = p.get("D2", np.inf)
+        self._D2inv = np.where(np.isinf(D2), 0.0, 1.0 / np.where(np.isinf(D2), 1.0, D2))
+        self._g1, self._tau_g1 = p.get("g1", 0.0), p.get("tau_g1", 1.0)
+        self._k1, self._tau_k1 = p.get("k1", 0.0), p.get("tau_k1", 1.0)
+        self.viscous = bool(np.any(self._g1 > 0) or np.any(self._k1 > 0))
+
+    def new_state(self) -> QLVState:
+        return QLVState(self.space.dV.shape)
+
+    # -- kinematics --------------------------------------------------------------------
+    def displacement(self, q) -> np.ndarray:
+        """(n_nodes, 3) nodal displacement of reduced unknowns q."""
+        return self.asm.expand(q).reshape(-1, 3)
+
+    # -- residual and tangent ------------------------------------------------------------
+    def evaluate(self, q, dt, state: QLVState, tangent=True) -> Evaluation:
+        """Reduced internal force and tangent at q, for a step of length dt from `state`."""
+        sp = self.space
+        F = sp.deformation_gradient(self.displacement(q))
+        S_iso, S_vol, CC_iso, CC_vol, J = hyperelastic_split(
+            F, self._C1, self._C2, self._D1, self._D2inv, tangent=tangent)
+        S, a_g, a_k = self._relaxed_stress(S_iso, S_vol, dt, state)
+        dV = sp.dV[..., None, None]
+        if tangent:
+            CC = a_g[..., None, None, None, None] * CC_iso + a_k[..., None, None, None, None] * CC_vol
+            P, A = first_elasticity(F, S, CC)
+        else:
+            P = F @ S
+        fe = np.einsum("eqiJ,eqaJ->eai", P * dV, sp.dNdX).reshape(len(F), 30)
+        r = self.asm.vector(fe)
+        K = None
+        if tangent:
+            GA = np.einsum("eqaJ,eqiJkL->eqaikL", sp.dNdX * sp.dV[..., None, None], A, optimize=True)
+            Ke = np.einsum("eqaikL,eqbL->eaibk", GA, sp.dNdX, optimize=True).reshape(len(F), 30, 30)
+            K = self.asm.matrix(Ke)
+        return Evaluation(r, K, S_iso, S_vol, float(J.min()))
+
+    def _relaxed_stress(self, S_iso, S_vol, dt, st: QLVState):
+        if not self.viscous:
+            one = np.ones(S_iso.shape[:-2])
+            return S_iso + S_vol, one, one
+        a_g, e_g, c_g = relaxation_factors(dt, self._g1, self._tau_g1)
+        a_k, e_k, c_k = relaxation_factors(dt, self._k1, self._tau_k1)
+        a_g, a_k = np.broadcast_to(a_g, S_iso.shape[:-2]), np.broadcast_to(a_k, S_iso.shape[:-2])
+        e = lambda x: np.broadcast_to(x, S_iso.shape[:-2])[..., None, None]
+        S = (e(a_g) * S_iso + e(self._g1) * (e(e_g) * st.H_iso - e(c_g) * st.S0_iso)
+             + e(a_k) * S_vol + e(self._k1) * (e(e_k) * st.H_vol - e(c_k) * st.S0_vol))
+        return S, a_g, a_k
+
+    def commit(self, state: QLVState, ev: Evaluation, dt) -> QLVState:
+        """History after a converged step of length dt ending at evaluation `ev`."""
+        if not self.viscous:
+            return state
+        new = QLVState.__new__(QLVState)
+        _, e_g, c_g = relaxation_factors(dt, self._g1, self._tau_g1)
+        _, e_k, c_k = relaxation_factors(dt, self._k1, self._tau_k1)
+        b = lambda x: np.broadcast_to(x, ev.S0_iso.shape[:-2])[..., None, None]
+        new.H_iso = b(e_g) * state.H_iso + b(c_g) * (ev.S0_iso - state.S0_iso)
+        new.H_vol = b(e_k) * state.H_vol + b(c_k) * (ev.S0_vol - state.S0_vol)
+        new.S0_iso, new.S0_vol = ev.S0_iso, ev.S0_vol
+        return new
+
+    def fix_punch(self, K):
+        """Make the punch depth a prescribed unknown in K (displacement control)."""
+        K.data[self.punch_positions] = 0.0
+        K.data[self.punch_positions[self.punch_diag]] = 1.0
+        return K

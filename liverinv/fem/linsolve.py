@@ -1,0 +1,81 @@
+"""Sparse direct solves of the reduced tangent, reusing the symbolic analysis.
+
+The reduced tangent's sparsity pattern never changes for a model, so the fill-reducing
+ordering and symbolic factorization are done once and every refactorization is numeric
+only. PARDISO (Intel MKL through pypardiso) when installed; SuperLU (scipy) otherwise.
+Measured on the coarse benchmark tangent (3971 unknowns, 2.7e5 non-zeros, 2 cores):
+PARDISO analysis+factorization 125 ms, numeric refactorization 45 ms, solve 10 ms;
+SuperLU (MMD on A^T+A) factorization 126 ms, solve 3 ms.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import scipy.sparse.linalg as sla
+
+__all__ = ["SparseSolver", "backend"]
+
+log = logging.getLogger(__name__)
+
+try:  # MKL is not available on every platform
+    import pypardiso as _pardiso
+except Exception:  # pragma: no cover
+    _pardiso = None
+
+
+def backend() -> str:
+    return "pardiso" if _pardiso is not None else "superlu"
+
+
+class SparseSolver:
+    """Factorize matrices sharing one CSR pattern, and solve with the last factorization.
+
+    The last factorization stays available (`solve`) until the next `factorize`, so
+    sensitivities d u / d parameter can reuse it.
+    """
+
+    def __init__(self, method: str | None = None):
+        self.method = method or backend()
+        if self.method not in ("pardiso", "superlu"):
+            raise ValueError(f"unknown linear solver {self.method!r}; use 'pardiso' or 'superlu'")
+        if self.method == "pardiso" and _pardiso is None:
+            raise ValueError("linear solver 'pardiso' needs the pypardiso package")
+        self._ps = None
+        self._pattern = None
+        self.K = None
+        self.n_factorizations = 0
+
+    def factorize(self, K):
+        K = K.tocsr()
+        if self.method == "superlu":
+            self._lu = sla.splu(K.tocsc(), permc_spec="MMD_AT_PLUS_A")
+        else:
+            pattern = (K.shape, K.nnz, hash(K.indptr.tobytes()), hash(K.indices.tobytes()))
+            if self._ps is None or pattern != self._pattern:
+                if self._ps is None:
+                    self._ps = _pardiso.PyPardisoSolver(mtype=11)
+                    self._ps.set_statistical_info_off()
+                self._ps.set_phase(11)
+                self._ps._call_pardiso(K, np.zeros((K.shape[0], 1)))
+                self._pattern = pattern
+            self._ps.set_phase(22)
+            self._ps._call_pardiso(K, np.zeros((K.shape[0], 1)))
+        self.K = K
+        self.n_factorizations += 1
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        if self.K is None:
+            raise RuntimeError("solve before factorize")
+        b = np.ascontiguousarray(b, dtype=float)
+        if self.method == "superlu":
+            return self._lu.solve(b)
+        self._ps.set_phase(33)
+        x = self._ps._call_pardiso(self.K, b if b.ndim == 2 else b[:, None])
+        return x.reshape(b.shape)
+
+    def free(self):
+        if self._ps is not None:
+            self._ps.free_memory(everything=True)
+            self._ps = None

@@ -1,0 +1,263 @@
+"""Quasi-static load stepping: quasi-Newton (BFGS on a reused factorization) or full
+Newton-Raphson, with line search and automatic step cutting.
+
+`solve_history` drives an `Indentation` model through a prescribed history of the punch
+depth (displacement control) or the punch force (force control, the depth is the result),
+recording the converged state at every requested time.
+
+Strategy ("bfgs", the default): the tangent is assembled and factorized only when needed;
+between refreshes each iteration costs one residual evaluation and one back-substitution,
+with the limited-memory BFGS update (two-loop recursion) on top of the factorized tangent,
+as in FEBio's default solver. The tangent is refreshed when the residual contracts by less
+than `refresh_ratio` per iteration or a step needs more than `refresh_after` iterations.
+"full": a new tangent at every iteration (quadratic convergence, more factorizations).
+"""
+
+from __future__ import annotations
+
+import logging
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .indentation import Indentation
+from .linsolve import SparseSolver
+
+__all__ = ["NewtonOptions", "History", "solve_history", "ConvergenceError"]
+
+log = logging.getLogger(__name__)
+
+
+class ConvergenceError(RuntimeError):
+    """The load step could not be completed even after the allowed step cuts."""
+
+
+class _StepFailure(Exception):
+    pass
+
+
+@dataclass
+class NewtonOptions:
+    method: str = "bfgs"      # "bfgs" (reuse factorization) or "full" (Newton-Raphson)
+    rtol: float = 1e-7        # residual norm relative to the force scale
+    f_floor: float = 1e-3     # N, force scale floor (near zero load)
+    max_iter: int = 30
+    max_cuts: int = 8         # a step may be split 2**max_cuts times
+    refresh_ratio: float = 0.3
+    refresh_after: int = 6
+    bfgs_memory: int = 10
+    extrapolate: bool = True  # predictor from the previous increment
+    solver: str | None = None  # "pardiso" or "superlu" (default: pardiso when installed)
+
+
+@dataclass
+class History:
+    time: np.ndarray
+    depth: np.ndarray
+    force: np.ndarray
+    u: np.ndarray                 # (n_frames, n_nodes, 3)
+    iterations: np.ndarray        # nonlinear iterations per frame (all sub-steps)
+    cuts: np.ndarray              # number of step cuts per frame
+    timing: dict = field(default_factory=dict)
+    state: object = None          # last QLV state
+    q: np.ndarray | None = None   # last reduced solution
+
+
+class _Engine:
+    """Evaluations, the current factorization and the cost counters of one run."""
+
+    def __init__(self, model, opts):
+        self.model, self.opts = model, opts
+        self.lin = SparseSolver(opts.solver)
+        self.fresh = False      # factorization taken at the current iterate
+        self.has_factor = False
+        self.t_assembly = self.t_factor = self.t_solve = 0.0
+        self.n_residual = self.n_tangent = self.n_solve = 0
+
+    def evaluate(self, q, dt, state, tangent):
+        t0 = _time.perf_counter()
+        ev = self.model.evaluate(q, dt, state, tangent=tangent)
+        self.t_assembly += _time.perf_counter() - t0
+        if tangent:
+            self.n_tangent += 1
+        else:
+            self.n_residual += 1
+        return ev
+
+    def refactor(self, q, dt, state, control):
+        ev = self.evaluate(q, dt, state, True)
+        K = self.model.fix_punch(ev.K) if control == "displacement" else ev.K
+        t0 = _time.perf_counter()
+        self.lin.factorize(K)
+        self.t_factor += _time.perf_counter() - t0
+        self.has_factor = True
+        return ev
+
+    def solve(self, b):
+        t0 = _time.perf_counter()
+        x = self.lin.solve(b)
+        self.t_solve += _time.perf_counter() - t0
+        self.n_solve += 1
+        return x
+
+
+def _residual(model, ev, control, target):
+    r = ev.r.copy()
+    if control == "displacement":
+        r[model.punch_index] = 0.0
+    else:
+        r[model.punch_index] -= target
+    return r
+
+
+def _admissible(ev):
+    return np.isfinite(ev.r).all() and ev.J_min > 0
+
+
+def _lbfgs(r, pairs, solve):
+    """Two-loop recursion: approximate K^-1 r with the stored (s, y, rho) pairs."""
+    v = r.copy()
+    alphas = []
+    for s, y, rho in reversed(pairs):
+        a = rho * (s @ v)
+        v -= a * y
+        alphas.append(a)
+    z = solve(v)
+    for (s, y, rho), a in zip(pairs, reversed(alphas)):
+        b = rho * (y @ z)
+        z += (a - b) * s
+    return z
+
+
+def _step(eng, q, dt, state, control, target):
+    """Equilibrium at the end of one step from the initial guess q."""
+    model, opts = eng.model, eng.opts
+    p = model.punch_index
+    q = q.copy()
+    if control == "displacement":
+        q[p] = target
+    ev = eng.evaluate(q, dt, state, False)
+    if not _admissible(ev):
+        raise _StepFailure("initial guess inverts an element")
+    r = _residual(model, ev, control, target)
+    pairs = []
+    refresh = opts.method == "full" or not eng.has_factor
+    rnorm = np.linalg.norm(r)
+    for it in range(opts.max_iter + 1):
+        scale = max(abs(ev.r[p]), abs(target) if control == "force" else 0.0, opts.f_floor)
+        if rnorm <= opts.rtol * scale:
+            return q, ev, it
+        if it == opts.max_iter:
+            break
+        if it >= opts.refresh_after and not eng.fresh:
+            refresh = True
+        if refresh:
+            ev = eng.refactor(q, dt, state, control)
+            eng.fresh, refresh, pairs = True, False, []
+        dq = -_lbfgs(r, pairs, eng.solve)
+        if not np.isfinite(dq).all():
+            raise _StepFailure("linear solve failed")
+        alpha, accepted = 1.0, False
+        for _ in range(6):
+            q_try = q + alpha * dq
+            ev_try = eng.evaluate(q_try, dt, state, False)
+            if _admissible(ev_try):
+                r_try = _residual(model, ev_try, control, target)
+                n_try = np.linalg.norm(r_try)
+                if n_try < (1 - 1e-4 * alpha) * rnorm:
+                    accepted = True
+                    break
+            alpha *= 0.5
+        if not accepted:
+            if not eng.fresh:  # a stale tangent led astray: refresh and try again
+                refresh = True
+                continue
+            raise _StepFailure(f"line search failed at iteration {it} (|r| = {rnorm:.3e})")
+        eng.fresh = False
+        s, y = q_try - q, r_try - r
+        sy = s @ y
+        if opts.method == "bfgs" and sy > 1e-14 * np.linalg.norm(s) * np.linalg.norm(y):
+            pairs.append((s, y, 1.0 / sy))
+            pairs = pairs[-opts.bfgs_memory:]
+        if n_try > opts.refresh_ratio * rnorm or opts.method == "full":
+            refresh = True
+        q, ev, r, rnorm = q_try, ev_try, r_try, n_try
+    raise _StepFailure(f"no convergence in {opts.max_iter} iterations (|r| = {rnorm:.3e})")
+
+
+def solve_history(model: Indentation, times, values, control="displacement",
+                  options: NewtonOptions | None = None, record=None) -> History:
+    """Run the model through a load history.
+
+    Parameters
+    ----------
+    model : Indentation
+    times : (n,) strictly increasing times in s; times[0] is the undeformed start
+    values : (n,) punch depth in m (displacement control) or force in N (force control);
+        values[0] must be 0
+    control : "displacement" or "force"
+    options : NewtonOptions
+    record : optional callable(frame, q, evaluation) called at every frame after the first
+    """
+    if control not in ("displacement", "force"):
+        raise ValueError(f"control must be 'displacement' or 'force', not {control!r}")
+    opts = options or NewtonOptions()
+    if opts.method not in ("bfgs", "full"):
+        raise ValueError(f"method must be 'bfgs' or 'full', not {opts.method!r}")
+    times = np.asarray(times, dtype=float)
+    values = np.asarray(values, dtype=float)
+    if times.ndim != 1 or len(times) != len(values) or len(times) < 2:
+        raise ValueError("times and values must be 1-D arrays of the same length >= 2")
+    if np.any(np.diff(times) <= 0):
+        raise ValueError("times must increase strictly")
+    if values[0] != 0:
+        raise ValueError("the history must start from zero load (values[0] = 0)")
+    n = len(times)
+    eng = _Engine(model, opts)
+    t_start = _time.perf_counter()
+    state = model.new_state()
+    q = np.zeros(model.n_red)
+    q_prev = v_prev = None
+    u = np.zeros((n, model.space.mesh.n_nodes, 3))
+    depth, force = np.zeros(n), np.zeros(n)
+    iters, cuts = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+    p = model.punch_index
+    for k in range(1, n):
+        pending = [(times[k - 1], values[k - 1], times[k], values[k], 0)]
+        while pending:
+            ta, va, tb, vb, level = pending.pop()
+            dt = tb - ta
+            guesses = [q]
+            if opts.extrapolate and q_prev is not None and va != v_prev:
+                guesses.insert(0, q + (q - q_prev) * ((vb - va) / (va - v_prev)))
+            err = None
+            for guess in guesses:
+                try:
+                    q_new, ev, it = _step(eng, guess, dt, state, control, vb)
+                    err = None
+                    break
+                except _StepFailure as e:
+                    err = e
+            if err is not None:
+                if level >= opts.max_cuts:
+                    raise ConvergenceError(f"step to t = {tb:.6g} s failed after {level} cuts: {err}")
+                log.info("cutting step [%g, %g] s: %s", ta, tb, err)
+                tm, vm = 0.5 * (ta + tb), 0.5 * (va + vb)
+                pending += [(tm, vm, tb, vb, level + 1), (ta, va, tm, vm, level + 1)]
+                cuts[k] += 1
+                continue
+            iters[k] += it
+            state = model.commit(state, ev, dt)
+            q_prev, v_prev, q = q, va, q_new
+            last = ev
+        u[k] = model.displacement(q)
+        depth[k], force[k] = q[p], last.r[p]
+        if record is not None:
+            record(k, q, last)
+    timing = dict(wall_s=_time.perf_counter() - t_start, assembly_s=eng.t_assembly,
+                  factor_s=eng.t_factor, solve_s=eng.t_solve, residuals=eng.n_residual,
+                  tangents=eng.n_tangent, factorizations=eng.lin.n_factorizations,
+                  back_substitutions=eng.n_solve, solver=eng.lin.method)
+    eng.lin.free()
+    return History(times, depth, force, u, iters, cuts, timing, state, q)

@@ -1,0 +1,106 @@
+"""The discrete displacement space: quadratic tetrahedra (tet10), isoparametric.
+
+Shape-function gradients and quadrature weights come from scikit-fem (`MeshTet2`,
+`ElementTetP2`) and are re-indexed to the mesh file's node numbering. The sparsity pattern
+of the global matrix is built once per space and reused by every assembly.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from ..mesh import TetMesh
+
+__all__ = ["Space"]
+
+log = logging.getLogger(__name__)
+
+
+class Space:
+    """Tet10 vector space on a mesh.
+
+    Attributes
+    ----------
+    mesh : TetMesh
+    dNdX : (ne, nq, 10, 3) shape-function gradients in the reference configuration
+    dV : (ne, nq) quadrature weights times det J (reference volume per point)
+    N : (nq, 10) shape-function values at the quadrature points
+    X_q : (ne, nq, 3) reference positions of the quadrature points
+    edofs : (ne, 30) global dof of (local node a, component i) at index 3 a + i
+    """
+
+    def __init__(self, mesh: TetMesh, intorder: int = 2):
+        from skfem import Basis, ElementTetP2, MeshTet1, MeshTet2
+
+        self.mesh = mesh
+        cells = mesh.cells
+        p_used = np.unique(cells[:, :4])
+        remap = -np.ones(mesh.n_nodes, dtype=np.int64)
+        remap[p_used] = np.arange(len(p_used))
+        t = remap[cells[:, :4]].T.copy()
+        # scikit-fem numbers vertex dofs, then edge dofs; find the file node of each dof,
+        # then build the isoparametric mesh with the file's (possibly curved) mid-nodes.
+        skm1 = MeshTet1(mesh.points[p_used].T.copy(), t)
+        basis1 = Basis(skm1, ElementTetP2(), intorder=intorder)
+        file_of_dof = self._match_by_cells(basis1, skm1, cells, remap, p_used)
+        self.skfem_dof_to_node = file_of_dof
+        skm = MeshTet2(mesh.points[file_of_dof].T.copy(), t)
+        basis = Basis(skm, ElementTetP2(), intorder=intorder)
+        if not np.array_equal(basis.element_dofs, basis1.element_dofs):
+            raise RuntimeError("scikit-fem dof numbering changed between linear and quadratic mesh")
+        self.basis = basis
+        ed = basis.element_dofs.T  # (ne, 10) skfem dofs, local skfem order
+        local_nodes = file_of_dof[ed]  # file node of each skfem local dof
+        nq = basis.X.shape[1]
+        grads = np.stack([basis.basis[i][0].grad for i in range(10)], axis=0)  # (10, 3, ne, nq)
+        self.dNdX = np.ascontiguousarray(grads.transpose(2, 3, 0, 1))
+        self.N = np.stack([basis.basis[i][0].value[0] for i in range(10)], axis=-1)  # (nq,10)
+        self.dV = np.ascontiguousarray(basis.dx)
+        self.X_q = np.ascontiguousarray(np.stack([basis.mapping.F(basis.X)[j] for j in range(3)], -1))
+        self.conn = local_nodes  # (ne, 10) file node of each local function
+        self.edofs = (3 * local_nodes[:, :, None] + np.arange(3)).reshape(len(cells), 30)
+        self.n_dofs = 3 * mesh.n_nodes
+        self.nq = nq
+        vol = self.dV.sum()
+        log.debug("space: %d elements, %d quadrature points each, volume %.6e", len(cells), nq, vol)
+
+    @staticmethod
+    def _match_by_cells(basis, skm, cells, remap, p_used):
+        """skfem dof -> file node: vertices through `p_used`, edge dofs through the file
+        cells' mid-edge nodes (meshio/VTK order: edges 01, 12, 20, 03, 13, 23)."""
+        n_vert = skm.p.shape[1]
+        out = -np.ones(basis.N, dtype=np.int64)
+        out[basis.nodal_dofs[0]] = p_used
+        vtk_edges = np.array([[0, 1], [1, 2], [2, 0], [0, 3], [1, 3], [2, 3]])
+        a = remap[cells[:, vtk_edges[:, 0]]]
+        b = remap[cells[:, vtk_edges[:, 1]]]
+        key_file = np.minimum(a, b) * n_vert + np.maximum(a, b)
+        edges = np.sort(skm.edges, axis=0)
+        key_sk = edges[0] * n_vert + edges[1]
+        order = np.argsort(key_sk)
+        pos = np.searchsorted(key_sk, key_file.ravel(), sorter=order)
+        edge_idx = order[pos]
+        if not np.array_equal(key_sk[edge_idx], key_file.ravel()):
+            raise ValueError("mesh cells and scikit-fem edges disagree")
+        out[basis.edge_dofs[0][edge_idx]] = cells[:, 4:].ravel()
+        if (out < 0).any():
+            raise ValueError("some scikit-fem dofs have no node in the mesh file")
+        return out
+
+    def volume(self) -> float:
+        return float(self.dV.sum())
+
+    def gather(self, u: np.ndarray) -> np.ndarray:
+        """(n_nodes, 3) nodal field -> (ne, 10, 3) element values."""
+        return u[self.conn]
+
+    def deformation_gradient(self, u: np.ndarray) -> np.ndarray:
+        """F = I + Grad u at every quadrature point, (ne, nq, 3, 3)."""
+        ue = u[self.conn]  # (ne, 10, 3)
+        F = np.einsum("eai,eqaJ->eqiJ", ue, self.dNdX)
+        F[..., 0, 0] += 1.0
+        F[..., 1, 1] += 1.0
+        F[..., 2, 2] += 1.0
+        return F

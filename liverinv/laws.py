@@ -1,0 +1,118 @@
+"""Named constitutive laws: which parameters each one has, their units and bounds.
+
+Add a law by adding one entry to `LAWS`. Every law is a subset of the general form of the
+seed paper (Eqs. 9-11, plus the biphasic permeability of Eq. 7): parameters not listed as
+free take the value in `fixed`, or the neutral value of `NEUTRAL` (no quartic bulk term, no
+relaxation).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+__all__ = ["Param", "Law", "PARAMS", "LAWS", "get_law", "LawError"]
+
+
+class LawError(ValueError):
+    """Unknown law, unknown parameter or a value out of bounds."""
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    unit: str
+    lower: float
+    upper: float
+    scale: str  # "log": optimized in log space; "linear": bounded fraction
+    description: str
+
+
+PARAMS = {p.name: p for p in [
+    Param("C1", "Pa", 1e-2, 1e5, "log", "first reduced-polynomial coefficient (mu0 = 2 C1)"),
+    Param("C2", "Pa", 0.0, 1e6, "log", "second reduced-polynomial coefficient (stiffening)"),
+    Param("D1", "1/Pa", 1e-7, 1.0, "log", "linear bulk compliance (K0 = 2 / D1)"),
+    Param("D2", "1/Pa", 1e-9, 1e3, "log", "quartic bulk compliance (absent: no quartic term)"),
+    Param("g1", "1", 0.0, 0.999, "linear", "relative shear relaxation amplitude"),
+    Param("tau_g1", "s", 1e-4, 1e3, "log", "shear relaxation time"),
+    Param("k1", "1", 0.0, 0.999, "linear", "relative bulk relaxation amplitude"),
+    Param("tau_k1", "s", 1e-4, 1e3, "log", "bulk relaxation time"),
+    Param("kappa", "m^4/(N s)", 1e-15, 1e-3, "log", "Darcy permeability of the biphasic mixture"),
+]}
+
+# value a parameter takes when a law does not have it
+NEUTRAL = {"D2": math.inf, "g1": 0.0, "tau_g1": 1.0, "k1": 0.0, "tau_k1": 1.0, "kappa": math.nan}
+
+
+@dataclass(frozen=True)
+class Law:
+    name: str
+    description: str
+    free: tuple
+    fixed: dict = field(default_factory=dict)
+    defaults: dict = field(default_factory=dict)
+    biphasic: bool = False
+
+    @property
+    def units(self) -> dict:
+        return {p: PARAMS[p].unit for p in self.free}
+
+    def bounds(self, name) -> tuple:
+        return PARAMS[name].lower, PARAMS[name].upper
+
+    def resolve(self, given: dict | None = None) -> dict:
+        """Complete parameter set (all of PARAMS) from the values `given` for the free
+        parameters, falling back on the law's defaults; checks names and bounds."""
+        given = dict(given or {})
+        unknown = [k for k in given if k not in self.free]
+        if unknown:
+            fixed = [k for k in unknown if k in self.fixed]
+            if fixed:
+                raise LawError(f"law {self.name!r} fixes {fixed} (at {self.fixed}); they cannot be set")
+            raise LawError(f"law {self.name!r} has no parameter(s) {unknown}; its parameters are {list(self.free)}")
+        out = dict(NEUTRAL)
+        out.update(self.fixed)
+        for k in self.free:
+            if k in given:
+                v = given[k]
+            elif k in self.defaults:
+                v = self.defaults[k]
+            else:
+                raise LawError(f"law {self.name!r} needs parameter {k!r} ({PARAMS[k].unit})")
+            try:
+                v = float(v)
+            except (TypeError, ValueError):
+                raise LawError(f"parameter {k}={v!r} is not a number") from None
+            lo, hi = self.bounds(k)
+            if not (lo <= v <= hi) or math.isnan(v):
+                raise LawError(f"parameter {k}={v:g} {PARAMS[k].unit} is outside its bounds [{lo:g}, {hi:g}]")
+            out[k] = v
+        return out
+
+
+_HYPER = dict(C1=200.0, C2=5000.0, D1=1.5e-3)
+LAWS = {law.name: law for law in [
+    Law("elastic", "reduced polynomial hyperelasticity (Eq. 9 with D2 absent)",
+        ("C1", "C2", "D1"), defaults=_HYPER),
+    Law("elastic_D2", "reduced polynomial hyperelasticity with quartic bulk term (Eq. 9)",
+        ("C1", "C2", "D1", "D2"), defaults=dict(_HYPER, D2=1e-2)),
+    Law("SR", "QLV, shear relaxation (Eqs. 9-10, D2 absent, k1 = 0)",
+        ("C1", "C2", "D1", "g1", "tau_g1"), defaults=dict(_HYPER, g1=0.4, tau_g1=0.06)),
+    Law("SR_low", "SR with low bulk compliance D1 = 1e-4 fixed",
+        ("C1", "C2", "g1", "tau_g1"), fixed=dict(D1=1e-4), defaults=dict(C1=200.0, C2=5000.0, g1=0.4, tau_g1=0.06)),
+    Law("SR_high", "SR with high bulk compliance D1 = 3e-3 fixed",
+        ("C1", "C2", "g1", "tau_g1"), fixed=dict(D1=3e-3), defaults=dict(C1=200.0, C2=5000.0, g1=0.4, tau_g1=0.06)),
+    Law("BR", "QLV, bulk relaxation with quartic bulk term, no shear relaxation (Eqs. 9, 11)",
+        ("C1", "C2", "D1", "D2", "k1", "tau_k1"),
+        defaults=dict(_HYPER, D2=1e-2, k1=0.5, tau_k1=0.1)),
+    Law("SBR", "QLV, shear and bulk relaxation (Eqs. 9-11)",
+        ("C1", "C2", "D1", "D2", "g1", "tau_g1", "k1", "tau_k1"),
+        defaults=dict(_HYPER, D2=1e-2, g1=0.4, tau_g1=0.06, k1=0.5, tau_k1=0.1)),
+]}
+
+
+def get_law(name: str) -> Law:
+    try:
+        return LAWS[name]
+    except KeyError:
+        raise LawError(f"unknown law {name!r}; known laws: {', '.join(LAWS)}") from None
