@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .assembly import ReducedAssembler
-from .material import QLVState, first_elasticity, hyperelastic_split, relaxation_factors
+from .material import QLVState, element_stiffness, hyperelastic_terms, relaxation_factors
 from .space import Space
 
 __all__ = ["Indentation", "Evaluation"]
@@ -117,21 +117,12 @@ class Indentation:
         """Reduced internal force and tangent at q, for a step of length dt from `state`."""
         sp = self.space
         F = sp.deformation_gradient(self.displacement(q))
-        S_iso, S_vol, CC_iso, CC_vol, J = hyperelastic_split(
-            F, self._C1, self._C2, self._D1, self._D2inv, tangent=tangent)
+        S_iso, S_vol, terms, J = hyperelastic_terms(F, self._C1, self._C2, self._D1, self._D2inv)
         S, a_g, a_k = self._relaxed_stress(S_iso, S_vol, dt, state)
-        dV = sp.dV[..., None, None]
-        if tangent:
-            CC = a_g[..., None, None, None, None] * CC_iso + a_k[..., None, None, None, None] * CC_vol
-            P, A = first_elasticity(F, S, CC)
-        else:
-            P = F @ S
-        fe = np.einsum("eqiJ,eqaJ->eai", P * dV, sp.dNdX).reshape(len(F), 30)
-        r = self.asm.vector(fe)
+        r = self.asm.vector(sp.internal_force(F @ S))
         K = None
         if tangent:
-            GA = np.einsum("eqaJ,eqiJkL->eqaikL", sp.dNdX * sp.dV[..., None, None], A, optimize=True)
-            Ke = np.einsum("eqaikL,eqbL->eaibk", GA, sp.dNdX, optimize=True).reshape(len(F), 30, 30)
+            Ke = element_stiffness(sp.dNdX, sp.dV, F, S, terms, a_g, a_k)
             K = self.asm.matrix(Ke)
         return Evaluation(r, K, S_iso, S_vol, float(J.min()))
 

@@ -33,7 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["hyperelastic_split", "first_elasticity", "relaxation_factors", "QLVState"]
+__all__ = ["hyperelastic_split", "hyperelastic_terms", "element_stiffness", "full_tangents",
+           "first_elasticity", "relaxation_factors", "QLVState"]
 
 _I = np.eye(3)
 
@@ -48,6 +49,34 @@ def _sym_prod(A, B):
                   + A[..., :, None, None, :] * B[..., None, :, :, None])
 
 
+def _det(F):
+    """Determinants of 3x3 matrices (..., 3, 3)."""
+    return (F[..., 0, 0] * (F[..., 1, 1] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 1])
+            - F[..., 0, 1] * (F[..., 1, 0] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 0])
+            + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0]))
+
+
+def _inv_sym(C):
+    """Inverses of symmetric 3x3 matrices by cofactors (much faster than batched LAPACK
+    for thousands of tiny matrices)."""
+    a, b, c = C[..., 0, 0], C[..., 1, 1], C[..., 2, 2]
+    d, e, f = C[..., 0, 1], C[..., 1, 2], C[..., 0, 2]
+    A = b * c - e * e
+    B = f * e - d * c
+    Cc = d * e - b * f
+    D = a * c - f * f
+    E = d * f - a * e
+    G = a * b - d * d
+    det = a * A + d * B + f * Cc
+    inv = np.empty_like(C)
+    inv[..., 0, 0], inv[..., 1, 1], inv[..., 2, 2] = A, D, G
+    inv[..., 0, 1] = inv[..., 1, 0] = B
+    inv[..., 0, 2] = inv[..., 2, 0] = Cc
+    inv[..., 1, 2] = inv[..., 2, 1] = E
+    inv /= det[..., None, None]
+    return inv
+
+
 def hyperelastic_split(F, C1, C2, D1, D2inv=0.0, tangent=True):
     """Isochoric and volumetric PK2 stresses (and material tangents) of the reduced
     polynomial law at deformation gradients F (..., 3, 3).
@@ -55,11 +84,46 @@ def hyperelastic_split(F, C1, C2, D1, D2inv=0.0, tangent=True):
     `D2inv` is 1/D2 (0 for no quartic volumetric term). Returns
     (S_iso, S_vol, CC_iso, CC_vol, J); the tangents are None when `tangent` is False.
     """
-    C = np.einsum("...kI,...kJ->...IJ", F, F)
-    J = np.linalg.det(F)
-    Ci = np.linalg.inv(C)
+    S_iso, S_vol, terms, J = hyperelastic_terms(F, C1, C2, D1, D2inv)
+    if not tangent:
+        return S_iso, S_vol, None, None, J
+    CC_iso, CC_vol = full_tangents(terms)
+    return S_iso, S_vol, CC_iso, CC_vol, J
+
+
+def tangent_terms(I1, Jm23, Wp, Wpp, J, p, dp, dI1b, Ci) -> dict:
+    """The material tangents as scalar multiples of four tensor products, which is all the
+    structured element stiffness needs:
+
+        CC_iso = c_dd d(x)d + c_ICi (I(x)Ci + Ci(x)I) + c_CiCi_iso Ci(x)Ci + c_sym_iso Ci(.)Ci
+        CC_vol = c_CiCi_vol Ci(x)Ci + c_sym_vol Ci(.)Ci,      d = dI1b/dC
+    """
+    return dict(d=dI1b, Ci=Ci, c_dd=4.0 * Wpp, c_ICi=-4.0 / 3.0 * Wp * Jm23,
+                c_CiCi_iso=4.0 / 9.0 * Wp * Jm23 * I1, c_sym_iso=4.0 / 3.0 * Wp * Jm23 * I1,
+                c_CiCi_vol=J * (p + J * dp), c_sym_vol=-2.0 * J * p)
+
+
+def full_tangents(t: dict):
+    """CC_iso and CC_vol as (..., 3, 3, 3, 3) arrays from `tangent_terms`."""
+    Ci, d = t["Ci"], t["d"]
+    I = np.broadcast_to(_I, Ci.shape)
+    x = lambda c: np.asarray(c)[..., None, None, None, None]
+    CiCi, CiodCi = _outer(Ci, Ci), _sym_prod(Ci, Ci)
+    CC_iso = (x(t["c_dd"]) * _outer(d, d) + x(t["c_ICi"]) * (_outer(I, Ci) + _outer(Ci, I))
+              + x(t["c_CiCi_iso"]) * CiCi + x(t["c_sym_iso"]) * CiodCi)
+    CC_vol = x(t["c_CiCi_vol"]) * CiCi + x(t["c_sym_vol"]) * CiodCi
+    return CC_iso, CC_vol
+
+
+def hyperelastic_terms(F, C1, C2, D1, D2inv=0.0):
+    """Stresses and structured tangent terms (see `tangent_terms`) at F (..., 3, 3):
+    returns (S_iso, S_vol, terms, J)."""
+    C = np.swapaxes(F, -1, -2) @ F
+    Ci = _inv_sym(C)
+    J = _det(F)  # signed: an inverted point has J < 0 and gives NaN stresses
     I1 = np.trace(C, axis1=-2, axis2=-1)
-    Jm23 = J ** (-2.0 / 3.0)
+    with np.errstate(invalid="ignore"):
+        Jm23 = J ** (-2.0 / 3.0)
     I1b = Jm23 * I1
     Wp = C1 + 2.0 * C2 * (I1b - 3.0)
     dI1b = Jm23[..., None, None] * (_I - (I1 / 3.0)[..., None, None] * Ci)
@@ -67,21 +131,48 @@ def hyperelastic_split(F, C1, C2, D1, D2inv=0.0, tangent=True):
     Jm1 = J - 1.0
     p = 2.0 / D1 * Jm1 + 4.0 * D2inv * Jm1**3
     S_vol = (J * p)[..., None, None] * Ci
-    if not tangent:
-        return S_iso, S_vol, None, None, J
-    Wpp = 2.0 * C2 * np.ones_like(I1b)
-    CiCi = _outer(Ci, Ci)
-    CiodCi = _sym_prod(Ci, Ci)
-    d2I1b = Jm23[..., None, None, None, None] * (
-        -1.0 / 3.0 * (_outer(np.broadcast_to(_I, Ci.shape), Ci) + _outer(Ci, np.broadcast_to(_I, Ci.shape)))
-        + (I1 / 9.0)[..., None, None, None, None] * CiCi
-        + (I1 / 3.0)[..., None, None, None, None] * CiodCi)
-    CC_iso = 4.0 * (Wpp[..., None, None, None, None] * _outer(dI1b, dI1b)
-                    + Wp[..., None, None, None, None] * d2I1b)
-    dp = 2.0 / D1 + 12.0 * D2inv * Jm1**2
-    CC_vol = (J * (p + J * dp))[..., None, None, None, None] * CiCi \
-        - (2.0 * J * p)[..., None, None, None, None] * CiodCi
-    return S_iso, S_vol, CC_iso, CC_vol, J
+    terms = tangent_terms(I1, Jm23, Wp, 2.0 * C2 * np.ones_like(I1b), J, p,
+                          2.0 / D1 + 12.0 * D2inv * Jm1**2, dI1b, Ci)
+    return S_iso, S_vol, terms, J
+
+
+def element_stiffness(G, dV, F, S, t: dict, a_g, a_k):
+    """Element tangent matrices (ne, 30, 30), dof order 3 a + i, of the total-Lagrangian
+    model without forming 4th-order tensors: with v_X = G X F^T (10 x 3 per point),
+
+        K = sum_q dV [ sum c v_X v_Y^T  +  c_sym/2 ((G Ci G^T) (x) (F Ci F^T)
+                        + v_C v_C^T with i, k swapped)  +  (G S G^T) (x) I ]
+
+    G (ne, nq, 10, 3) shape-function gradients, dV (ne, nq), a_g/a_k the relaxation
+    factors multiplying the isochoric/volumetric tangents.
+    """
+    ne, nq = dV.shape
+    Ft = np.swapaxes(F, -1, -2)
+    Ci = t["Ci"]
+    vd = G @ t["d"] @ Ft                      # (ne, nq, 10, 3)
+    vI = G @ Ft
+    vC = G @ Ci @ Ft
+    c_dd = a_g * t["c_dd"] * dV
+    c_IC = a_g * t["c_ICi"] * dV
+    c_CC = (a_g * t["c_CiCi_iso"] + a_k * t["c_CiCi_vol"]) * dV
+    c_sym = 0.5 * (a_g * t["c_sym_iso"] + a_k * t["c_sym_vol"]) * dV
+    V = np.stack([vd, vI, vC], axis=-1).reshape(ne, nq, 30, 3)
+    W = np.stack([c_dd[..., None] * V[..., 0], c_IC[..., None] * V[..., 2],
+                  c_IC[..., None] * V[..., 1] + c_CC[..., None] * V[..., 2]], axis=-1)
+    K = np.swapaxes(W, 1, 2).reshape(ne, 30, nq * 3) @ np.swapaxes(V, 2, 3).reshape(ne, nq * 3, 30)
+    # swapped outer product of v_C: K[a, i, b, k] += c_sym v_C[a, k] v_C[b, i]
+    vCw = (c_sym[..., None, None] * vC).reshape(ne, nq, 30)
+    Ks = np.swapaxes(vCw, 1, 2) @ vC.reshape(ne, nq, 30)  # [(a, k), (b, i)]
+    K += Ks.reshape(ne, 10, 3, 10, 3).transpose(0, 1, 4, 3, 2).reshape(ne, 30, 30)
+    # Kronecker terms: c_sym (G Ci G^T)_ab (F Ci F^T)_ik + (G S G^T)_ab delta_ik
+    Gt = np.swapaxes(G, -1, -2)
+    M = (G @ Ci @ Gt).reshape(ne, nq, 100)
+    N = (F @ Ci @ Ft).reshape(ne, nq, 9) * c_sym[..., None]
+    Kk = np.swapaxes(M, 1, 2) @ N                         # (ne, 100, 9) [(a, b), (i, k)]
+    Kg = ((G @ S @ Gt) * dV[..., None, None]).sum(axis=1)  # (ne, 10, 10)
+    Kk = Kk.reshape(ne, 10, 10, 3, 3) + Kg[..., None, None] * _I
+    K += Kk.transpose(0, 1, 3, 2, 4).reshape(ne, 30, 30)
+    return K
 
 
 def first_elasticity(F, S, CC):

@@ -56,7 +56,7 @@ class Space:
         nq = basis.X.shape[1]
         grads = np.stack([basis.basis[i][0].grad for i in range(10)], axis=0)  # (10, 3, ne, nq)
         self.dNdX = np.ascontiguousarray(grads.transpose(2, 3, 0, 1))
-        self.N = np.stack([basis.basis[i][0].value[0] for i in range(10)], axis=-1)  # (nq,10)
+        self.N = np.stack([np.asarray(basis.basis[i][0])[0] for i in range(10)], axis=-1)  # (nq, 10)
         self.dV = np.ascontiguousarray(basis.dx)
         self.X_q = np.ascontiguousarray(np.stack([basis.mapping.F(basis.X)[j] for j in range(3)], -1))
         self.conn = local_nodes  # (ne, 10) file node of each local function
@@ -89,6 +89,12 @@ class Space:
             raise ValueError("some scikit-fem dofs have no node in the mesh file")
         return out
 
+    def internal_force(self, P) -> np.ndarray:
+        """Element internal force vectors (ne, 30) of first Piola-Kirchhoff stresses P
+        (ne, nq, 3, 3): f_ai = sum_q P_iJ dN_a/dX_J dV."""
+        f = self.dNdX @ np.swapaxes(P * self.dV[..., None, None], 2, 3)  # (ne, nq, 10, 3)
+        return f.sum(axis=1).reshape(len(P), 30)
+
     def volume(self) -> float:
         return float(self.dV.sum())
 
@@ -99,7 +105,7 @@ class Space:
     def deformation_gradient(self, u: np.ndarray) -> np.ndarray:
         """F = I + Grad u at every quadrature point, (ne, nq, 3, 3)."""
         ue = u[self.conn]  # (ne, 10, 3)
-        F = np.einsum("eai,eqaJ->eqiJ", ue, self.dNdX)
+        F = np.swapaxes(ue, 1, 2)[:, None] @ self.dNdX  # (ne, nq, 3, 3)
         F[..., 0, 0] += 1.0
         F[..., 1, 1] += 1.0
         F[..., 2, 2] += 1.0
