@@ -8,7 +8,7 @@ import importlib
 import logging
 import sys
 
-COMMANDS = ["simulate"]
+COMMANDS = ["simulate", "synthesize", "track"]
 
 
 class UserError(Exception):

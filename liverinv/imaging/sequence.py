@@ -115,6 +115,7 @@ class SpeckleScene:
                                           tr.dynamic_range_db)
             self._coef = ndimage.spline_filter(self.ref_bmode, order=3, output=np.float32,
                                                mode="mirror")
+            self.bg_bmode = log_compress(self.bg_iq, self.reference_level, tr.dynamic_range_db)
             self._mask = mask
         log.info("speckle scene: %d tissue and %d background scatterers", len(self.tissue_pos),
                  len(bg_pos))
@@ -129,9 +130,10 @@ class SpeckleScene:
             X = inverse_map(u_grid, x[moving])
             tissue = ndimage.map_coordinates(self._mask, X.T, order=1, mode="nearest") > 0.5
             out = self.ref_bmode.ravel().copy()
-            idx = np.flatnonzero(moving)[tissue]
-            out[idx] = ndimage.map_coordinates(self._coef, X[tissue].T, order=3, prefilter=False,
-                                               mode="mirror")
+            mov = np.flatnonzero(moving)
+            out[mov[~tissue]] = self.bg_bmode.ravel()[mov[~tissue]]   # uncovered: background
+            out[mov[tissue]] = ndimage.map_coordinates(self._coef, X[tissue].T, order=3,
+                                                       prefilter=False, mode="mirror")
             out = out.reshape(g.shape)
             if opt.bmode_noise > 0:
                 out = out + opt.bmode_noise * self.rng.standard_normal(g.shape)

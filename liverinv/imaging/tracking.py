@@ -62,6 +62,8 @@ class TrackOptions:
     confidence: str = "sum"
     regularization: float = 1e-4
     presmooth_vox: float = 0.0
+    galerkin_iterations: int = 0
+    galerkin_min_confidence: float = 0.05
 
     def __post_init__(self):
         if self.confidence not in ("sum", "mean"):
@@ -149,32 +151,59 @@ class NodalTracker:
         in_view = np.all((node_pos >= 0) & (node_pos <= self.shape - 1), axis=1)
         live = (cover >= opt.min_coverage) & in_view
         gp = g[cols] * w[:, None]                             # weighted gradient per pair
-        Jp = self.J[cols]
-        for it in range(opt.max_iterations):
-            # each node's neighbourhood translated by the node's own estimate (A.2)
-            pos = base[cols] + v[rows]
-            inside = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
-            J1 = ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror")
-            dI = (J1 - Jp) * inside
-            b = np.stack([np.bincount(rows, gp[:, j] * dI, minlength=self.n) for j in range(3)], 1)
-            delta = -np.einsum("nij,nj->ni", Ainv, b)
-            v = v + delta
-            big = np.abs(delta[live]).max() if live.any() else 0.0
-            if big < opt.tol_vox:
-                break
-        self.iterations = it + 1
-        # confidence, Eq. A.4
+        J0p = self.J[cols]
+        Gp = self.G[cols]
+        # confidence, Eq. A.4 (frame-k gradients over the voxels in view)
         c = W @ np.abs(g)
         if opt.confidence == "mean":
             c = c / np.maximum(W @ ok0.astype(float), 1e-300)[:, None]
         c[~live] = 0.0
         cmax = c.max()
         c = c / cmax if cmax > 0 else c
+        strong = c.min(1) >= opt.galerkin_min_confidence
+        n_tr = opt.max_iterations
+        n_total = n_tr + opt.galerkin_iterations
+        it = 0
+        galerkin = False
+        while it < n_total:
+            # Frame k+1 is sampled once per voxel, at the motion interpolated from the nodes.
+            # Translation model (A.2): each node's neighbourhood is moved by the node's own
+            # estimate, by a first-order correction with the frame-k gradient,
+            # I(p + v_n) ~ I(p + v~) + g . (v_n - v~). Galerkin stage: the interpolated
+            # motion itself is the model (no window-average bias), strong nodes only.
+            v_at = v
+            vt = self.vw.interpolate(v)
+            pos = base + vt
+            inside = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
+            J1 = ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror")
+            it += 1
+            if galerkin:
+                dI = (J1[cols] - J0p) * inside[cols]
+            else:
+                dI = (J1[cols] - J0p + np.einsum("pj,pj->p", Gp, v[rows] - vt[cols])) * inside[cols]
+            if it > n_tr and not galerkin:
+                break
+            b = np.stack([np.bincount(rows, gp[:, j] * dI, minlength=self.n) for j in range(3)], 1)
+            delta = -np.einsum("nij,nj->ni", Ainv, b)
+            if galerkin:
+                delta[~strong] = 0.0
+            v = v + delta
+            big = np.abs(delta[live]).max() if live.any() else 0.0
+            if not galerkin and (big < opt.tol_vox or it >= n_tr):
+                if opt.galerkin_iterations == 0:
+                    # one more sample at the final estimate is not needed: keep J1 at v_at
+                    break
+                galerkin = True
+                n_total = it + opt.galerkin_iterations
+            elif galerkin and big < opt.tol_vox:
+                break
+        self.iterations = it
         v[cover <= 0] = 0.0
-        # frame k+1 where the material now is: start of the next pair
-        self.U = self.U + v
-        pos = self.Xa + self.vw.interpolate(self.U)
-        self.J, self.G, self.valid = self._sample(coef, grads, pos)
+        # frame k+1 where the material now is (where it was last sampled): next pair's start
+        self.U = self.U + v_at
+        self.J, self.valid = J1, inside
+        self.G = np.stack([ndimage.map_coordinates(gr, pos.T, order=1, mode="nearest")
+                           for gr in grads], 1)
         self.v = v
         return v, c
 

@@ -1,0 +1,178 @@
+"""From a study config to a measurement bundle: truth simulation, rendering, indenter record.
+
+The study's `imaging:` section (all keys optional; SI units)::
+
+    imaging:
+      truth: simulate          # simulate (forward model, liverinv.study) | analytic
+      mode: warp               # warp | scatter (see liverinv.imaging.sequence)
+      seed: 0
+      frames: 20               # volumes, evenly spanning the simulated time ...
+      frame_rate_hz: null      # ... or this many per second from t = 0
+      volume:
+        shape: [128, 48, 204]          # lateral, elevational, axial voxels
+        spacing_m: [0.5e-3, 0.5e-3, 0.3e-3]
+        standoff_m: 0.01               # stand-off pad in view below the tissue (z < 0)
+        origin_m: null                 # or the centre of voxel (0,0,0) in mesh coordinates
+      scatterers_per_cell: 5
+      bmode_noise: 0.0
+      noise_db: null           # scatter mode only
+      decorrelation: 0.0       # scatter mode only
+      transducer: {centre_frequency_hz: 3.0e6, sigma_m: [1.0e-3, 1.2e-3, 0.45e-3],
+                   dynamic_range_db: 50}
+      indenter: {rate_hz: 100, noise: false}   # noise: the paper's 3.9 um / 13 mN RMS
+      storage: uint16          # uint16 | float32
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from .analytic import analytic_run, triangle_depth
+from .bundle import Indenter, write_bundle
+from .grid import ImageGrid, paper_grid
+from .sequence import ImagingOptions, SpeckleScene
+from .speckle import Transducer
+from .weights import VoxelWeights
+
+log = logging.getLogger(__name__)
+
+__all__ = ["synthesize", "imaging_config", "PAPER_NOISE"]
+
+PAPER_NOISE = {"displacement_m": 3.9e-6, "force_N": 13e-3}   # section 2.1.1, with controller
+
+_KEYS = {"truth", "mode", "seed", "frames", "frame_rate_hz", "volume", "scatterers_per_cell",
+         "bmode_noise", "noise_db", "decorrelation", "transducer", "indenter", "storage",
+         "analytic"}
+
+
+def _err(msg):
+    from ..cli import UserError
+    return UserError(msg)
+
+
+def imaging_config(study: dict, source="study") -> dict:
+    """The validated `imaging:` section with defaults filled in."""
+    im = dict(study.get("imaging") or {})
+    bad = set(im) - _KEYS
+    if bad:
+        raise _err(f"{source}: imaging: unknown key(s) {sorted(bad)}; allowed {sorted(_KEYS)}")
+    im.setdefault("truth", "simulate")
+    if im["truth"] not in ("simulate", "analytic"):
+        raise _err(f"{source}: imaging.truth is {im['truth']!r}; allowed 'simulate', 'analytic'")
+    im.setdefault("mode", "warp")
+    if im["mode"] not in ("warp", "scatter"):
+        raise _err(f"{source}: imaging.mode is {im['mode']!r}; allowed 'warp', 'scatter'")
+    im.setdefault("seed", 0)
+    im.setdefault("frames", 20)
+    if not isinstance(im["frames"], int) or im["frames"] < 2:
+        raise _err(f"{source}: imaging.frames must be an integer >= 2, got {im['frames']!r}")
+    im.setdefault("frame_rate_hz", None)
+    im.setdefault("volume", {})
+    im.setdefault("indenter", {})
+    im.setdefault("storage", "uint16")
+    if im["storage"] not in ("uint16", "float32"):
+        raise _err(f"{source}: imaging.storage is {im['storage']!r}; allowed 'uint16', 'float32'")
+    return im
+
+
+def make_grid(vol: dict, source="study") -> ImageGrid:
+    try:
+        shape = tuple(vol.get("shape", (128, 48, 204)))
+        spacing = tuple(float(s) for s in vol.get("spacing_m", (0.5e-3, 0.5e-3, 0.3e-3)))
+        if len(shape) != 3 or len(spacing) != 3 or min(spacing) <= 0 or min(shape) < 4:
+            raise ValueError
+        if vol.get("origin_m") is not None:
+            return ImageGrid(shape, spacing, tuple(float(o) for o in vol["origin_m"]))
+        return paper_grid(shape, spacing, float(vol.get("standoff_m", 0.01)))
+    except (TypeError, ValueError):
+        raise _err(f"{source}: imaging.volume: shape needs 3 integers >= 4, spacing_m 3 "
+                   f"positive lengths, origin_m 3 coordinates; got {vol}") from None
+
+
+def _truth(study, im, base_dir, source):
+    if im["truth"] == "analytic":
+        from .weights import mesh_arrays
+        mesh = Path(base_dir) / study.get("mesh", "")
+        if not mesh.is_file():
+            raise _err(f"{source}: mesh: file {mesh} not found")
+        P, C = mesh_arrays(str(mesh))
+        ld = study.get("loading", {})
+        depth, rate = float(ld.get("depth", 9.2e-3)), float(ld.get("rate", 2e-3))
+        t = np.linspace(0.0, 2 * depth / rate, int(ld.get("steps", 46)) * 2 + 1)
+        return analytic_run(P, C, t, triangle_depth(t, depth, rate), **(im.get("analytic") or {}))
+    try:
+        from ..study import simulate_study
+    except ImportError:
+        raise _err(f"{source}: imaging.truth is 'simulate' but the forward engine "
+                   "(liverinv.study.simulate_study) is not available; use truth: analytic") from None
+    return simulate_study(study, Path(base_dir))
+
+
+def synthesize(study: dict, base_dir, out, truth_out=None, source="study"):
+    """Run the truth simulation, render the sequence and write the bundle (and the truth).
+
+    Returns the truth Dataset.
+    """
+    im = imaging_config(study, source)
+    grid = make_grid(im["volume"], source)
+    tr_cfg = dict(im.get("transducer") or {})
+    try:
+        transducer = Transducer(**{k: (tuple(v) if isinstance(v, list) else v)
+                                   for k, v in tr_cfg.items()})
+        opts = ImagingOptions(mode=im["mode"], seed=int(im["seed"]),
+                              scatterers_per_cell=float(im.get("scatterers_per_cell", 5.0)),
+                              bmode_noise=float(im.get("bmode_noise", 0.0)),
+                              noise_db=im.get("noise_db"),
+                              decorrelation=float(im.get("decorrelation", 0.0)),
+                              transducer=transducer)
+    except (TypeError, ValueError) as e:
+        raise _err(f"{source}: imaging: {e}") from None
+    ds = _truth(study, im, base_dir, source)
+    t_sim = ds["time"].values
+    if im["frame_rate_hz"]:
+        times = np.arange(im["frames"]) / float(im["frame_rate_hz"])
+        if times[-1] > t_sim[-1] + 1e-12:
+            raise _err(f"{source}: imaging: {im['frames']} frames at {im['frame_rate_hz']} Hz last "
+                       f"{times[-1]:.3g} s, longer than the simulation ({t_sim[-1]:.3g} s)")
+    else:
+        times = np.linspace(t_sim[0], t_sim[-1], im["frames"])
+    X, cells = ds["X"].values, ds["cells"].values
+    vw = VoxelWeights.build(X, cells, grid)
+    if len(vw.voxels) == 0:
+        raise _err(f"{source}: imaging.volume: the volume does not overlap the mesh")
+    scene = SpeckleScene(vw, opts)
+    u_frames = ds["u"].interp(time=times).values
+
+    def volumes():
+        for k in range(len(times)):
+            log.info("frame %d/%d", k + 1, len(times))
+            yield scene.frame(u_frames[k])
+
+    ind_cfg = im["indenter"]
+    rate = float(ind_cfg.get("rate_hz", 100.0))
+    ti = np.arange(t_sim[0], t_sim[-1] + 0.5 / rate, 1.0 / rate)
+    depth = np.interp(ti, t_sim, ds["indenter_depth"].values)
+    force = np.interp(ti, t_sim, ds["indenter_force"].values)
+    dn = fn = 0.0
+    if ind_cfg.get("noise", False):
+        rng = np.random.default_rng(int(im["seed"]) + 1)
+        dn, fn = PAPER_NOISE["displacement_m"], PAPER_NOISE["force_N"]
+        depth = depth + dn * rng.standard_normal(len(ti))
+        force = force + fn * rng.standard_normal(len(ti))
+    r = np.hypot(X[:, 0], X[:, 1])
+    geometry = {"tissue_height_m": float(X[:, 2].max() - X[:, 2].min()),
+                "tissue_radius_m": float(r.max()),
+                "indenter_radius_m": float(study.get("indenter_radius", 0.006)),
+                "indenter_axis_m": [0.0, 0.0], "mesh": str(study.get("mesh", ""))}
+    write_bundle(out, volumes(), grid, times,
+                 Indenter(ti, depth, force, dn, fn), geometry, dtype=im["storage"],
+                 imaging=im, truth_law=str(ds.attrs.get("law", "")))
+    if truth_out is not None:
+        from ..fileio import provenance, write_netcdf
+        ds = ds.copy()
+        ds.attrs.update(provenance(role="truth", imaging=im))
+        write_netcdf(ds, truth_out)
+    return ds
