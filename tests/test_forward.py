@@ -57,24 +57,34 @@ def test_patch_test_affine_field(coarse_mesh):
     assert f[top, 2].sum() == pytest.approx(expected[2], rel=2e-3)
 
 
-@pytest.mark.skipif(not FINE.exists(), reason="fine benchmark mesh missing")
-def test_small_strain_punch_stiffness_fine_mesh():
-    """F/d at small depth on the fine mesh against the converged axisymmetric reference
-    18.32 N/m (benchmark README) and Hayes et al. (1972): 2 a E / (1 - nu^2) kappa,
-    kappa = 1.219 for a/H = 0.198, nu = 0.364 (laterally unbounded layer: 18.38 N/m)."""
+def _small_strain_stiffness(mesh_path):
     from liverinv.forward import ForwardModel
 
-    fm = ForwardModel(FINE)
     d = 1e-6
-    model = fm.model("elastic", BENCH_ELASTIC)
-    h = solve_history(model, [0.0, 1.0], [0.0, d], "displacement")
-    k = h.force[-1] / d
+    model = ForwardModel(mesh_path).model("elastic", BENCH_ELASTIC)
+    return solve_history(model, [0.0, 1.0], [0.0, d], "displacement").force[-1] / d
+
+
+def test_small_strain_punch_stiffness_converges_to_reference(tmp_path):
+    """F/d at small depth against the converged axisymmetric reference 18.32 N/m
+    (benchmark README). Analytic cross-check: Hayes et al. (1972) give
+    2 a E / (1 - nu^2) kappa with kappa = 1.219 for a/H = 0.198, nu = 0.364 (18.38 N/m for
+    a laterally unbounded layer; factor as quoted in shared/benchmark/README.md).
+    The punch rim is singular, so conforming tet10 converge slowly from above: measured
+    19.07 (benchmark fine mesh, 4589 nodes), 18.66 (15468 nodes), 18.47 N/m (46206 nodes)."""
+    from liverinv.meshgen import generate_indentation_mesh
+
     mu, K = 2 * 200.0, 2 / 1.5e-3
     E = 9 * K * mu / (3 * K + mu)
     nu = (3 * K - 2 * mu) / (2 * (3 * K + mu))
-    hayes = 2 * 0.006 * E / (1 - nu**2) * 1.219
-    assert hayes == pytest.approx(18.38, abs=0.01)
-    assert k == pytest.approx(18.32, rel=0.03)
+    assert 2 * 0.006 * E / (1 - nu**2) * 1.219 == pytest.approx(18.38, abs=0.01)
+
+    path = generate_indentation_mesh(tmp_path / "rim06.msh", h_far=0.008, h_rim=0.0006)
+    k_refined = _small_strain_stiffness(path)
+    assert k_refined == pytest.approx(18.32, rel=0.03)
+    if FINE.exists():
+        k_fine = _small_strain_stiffness(FINE)
+        assert 18.32 < k_refined < k_fine < 18.32 * 1.06
 
 
 def test_load_unload_elastic_returns_to_zero(coarse_forward):
