@@ -40,13 +40,14 @@ class _StepFailure(Exception):
 @dataclass
 class NewtonOptions:
     method: str = "bfgs"      # "bfgs" (reuse factorization) or "full" (Newton-Raphson)
-    rtol: float = 1e-7        # residual norm relative to the force scale
+    rtol: float = 1e-6        # residual norm relative to the force scale
     f_floor: float = 1e-3     # N, force scale floor (near zero load)
     max_iter: int = 30
     max_cuts: int = 8         # a step may be split 2**max_cuts times
     refresh_ratio: float = 0.3
     refresh_after: int = 6
     bfgs_memory: int = 10
+    keep_pairs: bool = True   # carry BFGS pairs across steps until the next refactorization
     extrapolate: bool = True  # predictor from the previous increment
     solver: str | None = None  # "pardiso" or "superlu" (default: pardiso when installed)
 
@@ -72,6 +73,7 @@ class _Engine:
         self.lin = SparseSolver(opts.solver)
         self.fresh = False      # factorization taken at the current iterate
         self.has_factor = False
+        self.pairs = []         # BFGS secant pairs on top of the current factorization
         self.t_assembly = self.t_factor = self.t_solve = 0.0
         self.n_residual = self.n_tangent = self.n_solve = 0
 
@@ -141,7 +143,7 @@ def _step(eng, q, dt, state, control, target):
     if not _admissible(ev):
         raise _StepFailure("initial guess inverts an element")
     r = _residual(model, ev, control, target)
-    pairs = []
+    pairs = eng.pairs if opts.keep_pairs else []
     refresh = opts.method == "full" or not eng.has_factor
     rnorm = np.linalg.norm(r)
     for it in range(opts.max_iter + 1):
@@ -155,6 +157,7 @@ def _step(eng, q, dt, state, control, target):
         if refresh:
             ev = eng.refactor(q, dt, state, control)
             eng.fresh, refresh, pairs = True, False, []
+            eng.pairs = pairs
         dq = -_lbfgs(r, pairs, eng.solve)
         if not np.isfinite(dq).all():
             raise _StepFailure("linear solve failed")
@@ -179,7 +182,7 @@ def _step(eng, q, dt, state, control, target):
         sy = s @ y
         if opts.method == "bfgs" and sy > 1e-14 * np.linalg.norm(s) * np.linalg.norm(y):
             pairs.append((s, y, 1.0 / sy))
-            pairs = pairs[-opts.bfgs_memory:]
+            del pairs[:-opts.bfgs_memory]
         if n_try > opts.refresh_ratio * rnorm or opts.method == "full":
             refresh = True
         q, ev, r, rnorm = q_try, ev_try, r_try, n_try
