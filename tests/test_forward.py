@@ -94,10 +94,9 @@ def test_load_unload_elastic_returns_to_zero(coarse_forward):
     assert F.max() > 0.05
     assert abs(F[-1]) < 1e-6 * F.max()
     assert np.abs(ds.u.values[-1]).max() < 1e-9
-    # elastic: loading and unloading branches coincide
+    # elastic: loading and unloading branches coincide (frame k and 2n - k)
     n = 8
-    assert np.allclose(F[1:n], F[-2:-n - 1:-1][::-1][::-1][: n - 1][::-1][::-1], rtol=1e-6) or \
-        np.allclose(F[1:n], F[2 * n - 1:n:-1], rtol=1e-6)
+    assert np.allclose(F[1:n], F[2 * n - 1:n:-1], rtol=1e-5, atol=1e-7)
 
 
 def test_benchmark_force_at_4_6_mm_matches_peer_codes(coarse_forward):
