@@ -145,7 +145,7 @@ def test_full_newton_and_bfgs_agree(coarse_forward):
     m = coarse_forward.model("elastic", BENCH_ELASTIC)
     a = solve_history(m, hist.time, hist.value, options=NewtonOptions(method="full"))
     b = solve_history(m, hist.time, hist.value, options=NewtonOptions(method="bfgs"))
-    assert np.allclose(a.force, b.force, rtol=1e-6)
+    assert np.allclose(a.force, b.force, rtol=1e-5)
     assert b.timing["factorizations"] < a.timing["factorizations"]
 
 
