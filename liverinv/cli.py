@@ -8,7 +8,7 @@ import importlib
 import logging
 import sys
 
-COMMANDS = ["simulate", "synthesize", "track"]
+COMMANDS = ["simulate", "plot", "synthesize", "track"]
 
 
 class UserError(Exception):
