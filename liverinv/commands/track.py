@@ -16,11 +16,16 @@ def register(subparsers):
     p.add_argument("bundle", type=Path, help="measurement bundle (.h5)")
     p.add_argument("--mesh", type=Path, required=True, help="tracking mesh (gmsh tet10)")
     p.add_argument("--out", type=Path, required=True, help="flow file to write (.nc)")
-    p.add_argument("--iterations", type=int, default=4, help="max refinement iterations (4)")
+    p.add_argument("--iterations", type=int, default=2,
+                   help="max translation-model (Eq. A.2) iterations (2)")
+    p.add_argument("--galerkin-iterations", type=int, default=2,
+                   help="then max iterations with the interpolated-motion model (2; 0 = off)")
+    p.add_argument("--window", choices=["element", "subtet"], default="element",
+                   help="corner-node neighbourhood: all elements around it (paper) or sub-tets")
     p.add_argument("--tol-vox", type=float, default=5e-4,
                    help="stop refining when the largest correction is below this (voxels)")
-    p.add_argument("--stride", type=int, nargs=3, default=(1, 1, 1), metavar=("L", "E", "A"),
-                   help="use every n-th voxel along lateral, elevational, axial (1 1 1)")
+    p.add_argument("--stride", type=int, nargs=3, default=(2, 2, 1), metavar=("L", "E", "A"),
+                   help="use every n-th voxel along lateral, elevational, axial (2 2 1)")
     p.add_argument("--confidence", choices=["sum", "mean"], default="sum",
                    help="Eq. A.4 sum (paper) or weighted mean of |gradient|")
     p.add_argument("--frames", type=int, default=None, help="track only the first N volumes")
@@ -59,14 +64,16 @@ def run(args) -> int:
     from ..imaging.tracking import TrackOptions
 
     points, cells = read_tracking_mesh(args.mesh)
-    if args.iterations < 1 or min(args.stride) < 1:
-        raise UserError("--iterations and --stride must be >= 1")
+    if args.iterations < 1 or min(args.stride) < 1 or args.galerkin_iterations < 0:
+        raise UserError("--iterations and --stride must be >= 1, --galerkin-iterations >= 0")
     opts = TrackOptions(max_iterations=args.iterations, tol_vox=args.tol_vox,
-                        confidence=args.confidence)
+                        confidence=args.confidence,
+                        galerkin_iterations=args.galerkin_iterations)
     with open_bundle(args.bundle) as b:
         if b.n_frames < 2:
             raise UserError(f"{args.bundle}: /volumes/data holds {b.n_frames} volume; tracking needs 2")
-        ds = track_bundle(b, points, cells, opts, stride=tuple(args.stride), frames=args.frames)
+        ds = track_bundle(b, points, cells, opts, stride=tuple(args.stride), frames=args.frames,
+                          window=args.window)
         ds.attrs.update(provenance(bundle=str(args.bundle), bundle_sha256=file_sha256(args.bundle),
                                    mesh=str(args.mesh), mesh_sha256=file_sha256(args.mesh)))
         write_netcdf(ds, args.out)

@@ -27,14 +27,14 @@ __all__ = ["track_bundle"]
 
 
 def track_bundle(bundle: Bundle, points, cells, options: TrackOptions | None = None,
-                 stride=(1, 1, 1), frames=None) -> xr.Dataset:
+                 stride=(2, 2, 1), frames=None, window="element") -> xr.Dataset:
     """Nodal Lucas-Kanade flow of every consecutive frame pair of `bundle` (see module doc).
 
     `frames` optionally restricts tracking to the first `frames` volumes."""
     opts = options or TrackOptions()
     grid = bundle.grid
     t0 = _time.perf_counter()
-    vw = VoxelWeights.build(points, cells, grid, stride=stride)
+    vw = VoxelWeights.build(points, cells, grid, stride=stride, window=window)
     t_build = _time.perf_counter() - t0
     nf = bundle.n_frames if frames is None else min(frames, bundle.n_frames)
     n = len(points)
@@ -73,5 +73,5 @@ def track_bundle(bundle: Bundle, points, cells, options: TrackOptions | None = N
         coords={"frame": np.arange(nf - 1), "component": comp,
                 "axis": ["lateral", "elevational", "axial"]},
         attrs={"tracking_seconds": t_track, "weights_seconds": t_build,
-               "options": str(opts.__dict__), "stride": str(tuple(stride))})
+               "options": str(opts.__dict__), "stride": str(tuple(stride)), "window": window})
     return ds

@@ -7,8 +7,9 @@ Two ways to make frame k from the truth displacement u_k at the mesh nodes:
     ``I_k(x) = I_0(X)`` with ``x = X + u_k(X)``, by cubic B-spline interpolation. X(x) is found
     per voxel by the fixed-point iteration ``X <- x - u_k(X)``, with u_k resampled on the
     voxel grid (mesh hat functions inside the tissue, nearest tissue value outside) and
-    interpolated trilinearly. Voxels whose X lies outside the reference tissue show the
-    static background instead.
+    interpolated trilinearly. Outside the tissue the image moves with the nearest tissue
+    (so the PSF tails of the tissue echo move with it); the stand-off pad under the fixed
+    bottom and water far from the tissue do not move.
 ``scatter``
     Physically: the tissue scatterers move with the tissue, ``x_s = X_s + u_k(X_s)``, and the
     frame is rendered again. Speckle then changes as in a real probe (axial phase, local
@@ -115,8 +116,6 @@ class SpeckleScene:
                                           tr.dynamic_range_db)
             self._coef = ndimage.spline_filter(self.ref_bmode, order=3, output=np.float32,
                                                mode="mirror")
-            self.bg_bmode = log_compress(self.bg_iq, self.reference_level, tr.dynamic_range_db)
-            self._mask = mask
         log.info("speckle scene: %d tissue and %d background scatterers", len(self.tissue_pos),
                  len(bg_pos))
 
@@ -128,12 +127,9 @@ class SpeckleScene:
             x = np.stack(np.unravel_index(np.arange(g.size), g.shape), 1).astype(float)
             moving = np.abs(u_grid).max(axis=-1).ravel() > 1e-6
             X = inverse_map(u_grid, x[moving])
-            tissue = ndimage.map_coordinates(self._mask, X.T, order=1, mode="nearest") > 0.5
             out = self.ref_bmode.ravel().copy()
-            mov = np.flatnonzero(moving)
-            out[mov[~tissue]] = self.bg_bmode.ravel()[mov[~tissue]]   # uncovered: background
-            out[mov[tissue]] = ndimage.map_coordinates(self._coef, X[tissue].T, order=3,
-                                                       prefilter=False, mode="mirror")
+            out[moving] = ndimage.map_coordinates(self._coef, X.T, order=3, prefilter=False,
+                                                  mode="mirror")
             out = out.reshape(g.shape)
             if opt.bmode_noise > 0:
                 out = out + opt.bmode_noise * self.rng.standard_normal(g.shape)

@@ -55,15 +55,15 @@ _PAIRS = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
 class TrackOptions:
     """Options of the nodal Lucas-Kanade tracker (voxel units where named so)."""
 
-    max_iterations: int = 4
-    tol_vox: float = 2e-4
+    max_iterations: int = 2
+    tol_vox: float = 5e-4
     warm_start: bool = True
     min_coverage: float = 0.5
     confidence: str = "sum"
     regularization: float = 1e-4
     presmooth_vox: float = 0.0
     galerkin_iterations: int = 0
-    galerkin_min_confidence: float = 0.05
+    bias_correction: int = 1
 
     def __post_init__(self):
         if self.confidence not in ("sum", "mean"):
@@ -112,6 +112,8 @@ class NodalTracker:
         if self.opt.presmooth_vox > 0:
             vol = ndimage.gaussian_filter(vol, self.opt.presmooth_vox)
         coef = ndimage.spline_filter(vol, order=3, output=np.float32, mode="mirror")
+        # central differences of the samples (those of the spline coefficients, the exact
+        # derivative of the interpolant, over-weight aliased speckle and converge slower)
         grads = np.gradient(vol)
         return coef, grads
 
@@ -160,44 +162,39 @@ class NodalTracker:
         c[~live] = 0.0
         cmax = c.max()
         c = c / cmax if cmax > 0 else c
-        strong = c.min(1) >= opt.galerkin_min_confidence
-        n_tr = opt.max_iterations
-        n_total = n_tr + opt.galerkin_iterations
-        it = 0
-        galerkin = False
-        while it < n_total:
-            # Frame k+1 is sampled once per voxel, at the motion interpolated from the nodes.
-            # Translation model (A.2): each node's neighbourhood is moved by the node's own
-            # estimate, by a first-order correction with the frame-k gradient,
-            # I(p + v_n) ~ I(p + v~) + g . (v_n - v~). Galerkin stage: the interpolated
-            # motion itself is the model (no window-average bias), strong nodes only.
+        # Stage 1, the Appendix: per-node translation (A.2-A.3), iterated with warping.
+        for it in range(1, opt.max_iterations + 1):
+            # Frame k+1 is sampled once per voxel at the motion interpolated from the nodes,
+            # then moved to each node's own translation by a first-order correction with the
+            # frame-k gradient: I(p + v_n) ~ I(p + v~) + g . (v_n - v~).
             v_at = v
             vt = self.vw.interpolate(v)
             pos = base + vt
             inside = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
             J1 = ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror")
-            it += 1
-            if galerkin:
-                dI = (J1[cols] - J0p) * inside[cols]
-            else:
-                dI = (J1[cols] - J0p + np.einsum("pj,pj->p", Gp, v[rows] - vt[cols])) * inside[cols]
-            if it > n_tr and not galerkin:
-                break
+            dI = (J1[cols] - J0p + np.einsum("pj,pj->p", Gp, v[rows] - vt[cols])) * inside[cols]
             b = np.stack([np.bincount(rows, gp[:, j] * dI, minlength=self.n) for j in range(3)], 1)
             delta = -np.einsum("nij,nj->ni", Ainv, b)
-            if galerkin:
-                delta[~strong] = 0.0
             v = v + delta
-            big = np.abs(delta[live]).max() if live.any() else 0.0
-            if not galerkin and (big < opt.tol_vox or it >= n_tr):
-                if opt.galerkin_iterations == 0:
-                    # one more sample at the final estimate is not needed: keep J1 at v_at
-                    break
-                galerkin = True
-                n_total = it + opt.galerkin_iterations
-            elif galerkin and big < opt.tol_vox:
+            if (np.abs(delta[live]).max() if live.any() else 0.0) < opt.tol_vox:
                 break
+        self.v_local = v.copy()
         self.iterations = it
+        # Stage 2 (optional): window-bias correction. The translation estimate is the window
+        # average of the motion field, v_local ~ B v with B v = A_n^-1 sum_i N_n,i g g^T (Ni v)_i
+        # (Ni: interpolation). Neumann terms of B^-1 remove the bias of strain gradients and
+        # one-sided windows at surfaces: v = v_local + (I - B) v_local + (I - B)^2 v_local ...
+        if opt.bias_correction > 0:
+            term = v.copy()
+            gg = np.empty((len(g), 3, 3))
+            for a_, b_ in _PAIRS:
+                gg[:, a_, b_] = gg[:, b_, a_] = g[:, a_] * g[:, b_]
+            for _ in range(opt.bias_correction):
+                vi = self.vw.interpolate(term)                      # (m, 3)
+                Bt = np.einsum("nij,nj->ni", Ainv, W @ np.einsum("mij,mj->mi", gg, vi))
+                term = term - Bt
+                term[~live] = 0.0
+                v = v + term
         v[cover <= 0] = 0.0
         # frame k+1 where the material now is (where it was last sampled): next pair's start
         self.U = self.U + v_at
@@ -206,6 +203,22 @@ class NodalTracker:
                            for gr in grads], 1)
         self.v = v
         return v, c
+
+    def _galerkin_matrix(self, g):
+        """LU factors of K = sum_i Ni Ni^T g_i g_i^T (3n x 3n, component-major) plus a small
+        relative diagonal term for nodes without data."""
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+        Wi, WT = self.vw.Wi, self.vw.WT
+        blocks = {}
+        for a, b in _PAIRS:
+            blocks[a, b] = (Wi.multiply(g[:, a] * g[:, b]) @ WT).tocsr()
+        K = sp.bmat([[blocks[min(a, b), max(a, b)] for b in range(3)] for a in range(3)],
+                    format="csc")
+        d = K.diagonal()
+        scale = d[d > 0].mean() if np.any(d > 0) else 1.0
+        K = K + sp.diags(self.opt.regularization * d + 1e-6 * scale)
+        return splu(K.tocsc())
 
     @property
     def _pairs(self):

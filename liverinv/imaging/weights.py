@@ -1,13 +1,20 @@
 """Voxel-to-node weights: where each voxel sits in the mesh and how much it belongs to each node.
 
-Choice of shape function. Every tet10 element is split into 8 linear sub-tetrahedra whose
+Choice of shape functions. Every tet10 element is split into 8 linear sub-tetrahedra whose
 vertices are its corner and mid-edge nodes (4 corner tets plus the inner octahedron cut
-along one diagonal). Each node, corner or mid-side, gets the linear "hat" of the sub-tets
-around it: the linear tetrahedral shape function of the paper's Appendix (Zienkiewicz),
-on the refined P1 mesh. The hats are non-negative (unlike the quadratic tet10 functions,
-which are negative in parts of the element and would make negative least-squares
-weights) and sum to one at every voxel, so the same matrix also interpolates nodal
-motion to voxels (``W.T @ u``).
+along one diagonal).
+
+* Interpolation (`Wi`, nodal motion -> voxels): each node, corner or mid-side, has the
+  linear "hat" of the sub-tets around it (a P1 field on the refined mesh). The hats are
+  non-negative and sum to one at every voxel.
+* Tracking windows (`W`, the weights N_i of Eqs. A.2-A.4), ``window="element"`` (default):
+  a corner node gets the linear tetrahedral shape function of each element around it
+  (the paper's choice: Zienkiewicz's linear tet on the element's 4 corners), so its
+  neighbourhood is all elements around it; a mid-side node, which has no linear shape
+  function, gets its sub-tet hat (a neighbourhood about half as wide: less texture, so
+  lower Eq. A.4 confidence). ``window="subtet"`` uses the sub-tet hats for every node.
+  The quadratic tet10 functions are not used: they are negative in parts of the element
+  and would give negative least-squares weights.
 
 The weights are built once per mesh and image grid (`VoxelWeights.build`).
 """
@@ -55,8 +62,9 @@ def _edge_slots(points, cells):
     return slots
 
 
-def subtets(points, cells) -> np.ndarray:
-    """(8 ne, 4) node indices of the linear sub-tetrahedra of tet10 `cells`."""
+def subtets(points, cells, return_slots=False):
+    """(8 ne, 4) node indices of the linear sub-tetrahedra of tet10 `cells` (sub-tet t lies
+    in element t // 8); with `return_slots` also the (8, 4) local node slots of each."""
     s = _edge_slots(points, cells)
     e = lambda a, b: s[(min(a, b), max(a, b))]
     local = [(0, e(0, 1), e(0, 2), e(0, 3)), (1, e(0, 1), e(1, 2), e(1, 3)),
@@ -64,7 +72,9 @@ def subtets(points, cells) -> np.ndarray:
     d0, d1 = e(0, 2), e(1, 3)                       # octahedron diagonal
     ring = [e(0, 1), e(1, 2), e(2, 3), e(0, 3)]     # equator, cyclic
     local += [(d0, d1, ring[i], ring[(i + 1) % 4]) for i in range(4)]
-    return cells[:, np.asarray(local)].reshape(-1, 4)
+    local = np.asarray(local)
+    st = cells[:, local].reshape(-1, 4)
+    return (st, local) if return_slots else st
 
 
 @dataclass
@@ -74,7 +84,8 @@ class VoxelWeights:
     Attributes
     ----------
     voxels : (m,) int, flat (C order) indices of the active voxels (centre inside the mesh)
-    W : scipy.sparse.csr_matrix (n_nodes, m), W[n, a] = hat of node n at active voxel a
+    W : scipy.sparse.csr_matrix (n_nodes, m), tracking-window weight of node n at voxel a
+    Wi : scipy.sparse.csr_matrix (n_nodes, m), interpolation hat of node n at voxel a
     grid : ImageGrid
     n_nodes : int
     """
@@ -83,15 +94,16 @@ class VoxelWeights:
     W: sp.csr_matrix
     grid: ImageGrid
     n_nodes: int
+    Wi: sp.csr_matrix | None = None
 
-    @property
-    def WT(self) -> sp.csr_matrix:
-        if not hasattr(self, "_WT"):
-            self._WT = self.W.T.tocsr()
-        return self._WT
+    def __post_init__(self):
+        if self.Wi is None:
+            self.Wi = self.W
+        self.WT = self.Wi.T.tocsr()
 
     @classmethod
-    def build(cls, points, cells, grid: ImageGrid, stride=(1, 1, 1)) -> "VoxelWeights":
+    def build(cls, points, cells, grid: ImageGrid, stride=(1, 1, 1),
+              window: str = "element", interpolation: str = "p2") -> "VoxelWeights":
         """Locate every voxel centre of `grid` in the sub-tets of the mesh (reference
         configuration `points`, m) and build the sparse weight matrix.
 
@@ -99,7 +111,13 @@ class VoxelWeights:
         quadrature of the neighbourhood sums; speckle is correlated over about one PSF
         width, so a stride up to the PSF sigma in voxels loses little information).
         """
-        st = subtets(points, cells)
+        if window not in ("element", "subtet"):
+            raise ValueError(f"window must be 'element' or 'subtet', not {window!r}")
+        if interpolation not in ("p1", "p2"):
+            raise ValueError(f"interpolation must be 'p1' or 'p2', not {interpolation!r}")
+        points, cells = np.asarray(points, float), np.asarray(cells, np.int64)
+        st, slots = subtets(points, cells, return_slots=True)
+        owner_t = []
         vx = grid.to_vox(points)                      # node coords in voxel units
         shape = np.asarray(grid.shape)
         owner_node = []
@@ -128,21 +146,47 @@ class VoxelWeights:
             owner_vox.append(flat)
             owner_node.append(np.broadcast_to(st[t], (len(flat), 4)))
             owner_w.append(np.clip(lam[inside][new], 0.0, 1.0))
+            owner_t.append(np.full(len(flat), t))
         vox = np.concatenate(owner_vox) if owner_vox else np.zeros(0, np.int64)
         order = np.argsort(vox)
         vox = vox[order]
         nodes = np.concatenate(owner_node)[order] if owner_vox else np.zeros((0, 4), np.int64)
         w = np.concatenate(owner_w)[order] if owner_vox else np.zeros((0, 4))
+        tid = np.concatenate(owner_t)[order] if owner_vox else np.zeros(0, np.int64)
         w /= np.maximum(w.sum(1, keepdims=True), 1e-300)
         if tuple(stride) != (1, 1, 1):
             ijk = np.stack(np.unravel_index(vox, grid.shape), 1)
             keep = np.all(ijk % np.asarray(stride) == 0, axis=1)
-            vox, nodes, w = vox[keep], nodes[keep], w[keep]
-        cols = np.repeat(np.arange(len(vox)), 4)
-        W = sp.csr_matrix((w.ravel(), (nodes.ravel(), cols)), shape=(len(points), len(vox)))
-        log.info("voxel weights: %d of %d voxels inside the mesh, %d nonzeros",
-                 len(vox), grid.size, W.nnz)
-        return cls(voxels=vox, W=W, grid=grid, n_nodes=len(points))
+            vox, nodes, w, tid = vox[keep], nodes[keep], w[keep], tid[keep]
+        m, n = len(vox), len(points)
+        cols = np.repeat(np.arange(m), 4)
+        Wi = sp.csr_matrix((w.ravel(), (nodes.ravel(), cols)), shape=(n, m))
+        W = Wi
+        if m and (window == "element" or interpolation == "p2"):
+            elem = tid // 8
+            corners = cells[elem, :4]                              # (m, 4)
+            pc = vx[corners]                                       # (m, 4, 3)
+            Te = np.transpose(pc[:, 1:] - pc[:, :1], (0, 2, 1))
+            ijk = np.stack(np.unravel_index(vox, grid.shape), 1).astype(float)
+            lam = np.linalg.solve(Te, (ijk - pc[:, 0])[..., None])[..., 0]
+            lam = np.column_stack([1.0 - lam.sum(1), lam])
+        if m and interpolation == "p2":
+            # quadratic tet10 shape functions on the straight-sided element (affine map)
+            es = _edge_slots(points, cells)
+            slots_e = [es[k] for k in sorted(es)]
+            Nq = np.column_stack([lam * (2 * lam - 1)] + [4 * lam[:, a] * lam[:, b] for a, b in sorted(es)])
+            nodes_q = np.column_stack([corners, cells[elem][:, slots_e]])
+            Wi = sp.csr_matrix((Nq.ravel(), (nodes_q.ravel(), np.repeat(np.arange(m), 10))),
+                               shape=(n, m))
+        if m and window == "element":
+            lam = np.clip(lam, 0.0, None)
+            mid = slots[tid % 8] >= 4                              # sub-tet vertices that are mid-edge
+            rows = np.concatenate([corners.ravel(), nodes[mid]])
+            cc = np.concatenate([cols, np.broadcast_to(np.arange(m)[:, None], (m, 4))[mid]])
+            W = sp.csr_matrix((np.concatenate([lam.ravel(), w[mid]]), (rows, cc)), shape=(n, m))
+        log.info("voxel weights: %d of %d voxels inside the mesh, %d window nonzeros",
+                 m, grid.size, W.nnz)
+        return cls(voxels=vox, W=W, grid=grid, n_nodes=n, Wi=Wi)
 
     def interpolate(self, nodal: np.ndarray) -> np.ndarray:
         """Nodal values (n, ...) interpolated to the active voxels (m, ...)."""

@@ -1,0 +1,75 @@
+"""`liverinv synthesize` and `liverinv track` end to end on a small volume."""
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from liverinv.cli import UserError
+from liverinv.commands import synthesize, track
+from liverinv.imaging.bundle import open_bundle
+
+MESH = Path(__file__).resolve().parents[2] / "shared" / "benchmark" / "cylinder_coarse.msh"
+pytestmark = pytest.mark.skipif(not MESH.is_file(), reason="benchmark mesh not available")
+
+STUDY = f"""
+mesh: {MESH}
+law: elastic
+params: {{C1: 200.0, C2: 5000.0, D1: 1.5e-3}}
+loading: {{control: displacement, depth: 9.2e-3, rate: 2.0e-3, steps: 4, unload: true, frames: 5}}
+imaging:
+  truth: analytic
+  seed: 2
+  frames: 3
+  frame_rate_hz: 26
+  volume: {{shape: [40, 12, 48], spacing_m: [1.0e-3, 1.0e-3, 0.8e-3], standoff_m: 0.005}}
+  transducer: {{sigma_m: [2.0e-3, 2.0e-3, 1.2e-3]}}
+  indenter: {{rate_hz: 50, noise: true}}
+"""
+
+
+def _parser():
+    p = argparse.ArgumentParser()
+    sub = p.add_subparsers(dest="command", required=True)
+    synthesize.register(sub)
+    track.register(sub)
+    return p
+
+
+def test_synthesize_then_track(tmp_path):
+    study = tmp_path / "s.yaml"
+    study.write_text(STUDY)
+    bundle, truth, flow, png = (tmp_path / n for n in ("b.h5", "t.nc", "f.nc", "f.png"))
+    p = _parser()
+    a = p.parse_args(["synthesize", str(study), "--out", str(bundle), "--truth-out", str(truth)])
+    assert a.func(a) == 0
+    with open_bundle(bundle, check_all_frames=True) as b:
+        assert b.n_frames == 3 and b.grid.shape == (40, 12, 48)
+        np.testing.assert_allclose(np.diff(b.time_s), 1 / 26)
+        assert b.indenter.displacement_noise_rms_m == pytest.approx(3.9e-6)
+        assert len(b.indenter.time_s) > 400
+    t = xr.load_dataset(truth)
+    assert t["u"].dims == ("time", "node", "component")
+    a = p.parse_args(["track", str(bundle), "--mesh", str(MESH), "--out", str(flow),
+                      "--stride", "1", "1", "1", "--picture", str(png)])
+    assert a.func(a) == 0
+    f = xr.load_dataset(flow)
+    assert f["u_of"].shape == (2, 1490, 3) and f["c_of"].shape == (2, 1490, 3)
+    c = f["c_of"].values
+    assert c.min() >= 0 and c.max() == pytest.approx(1.0)
+    X = f["X"].values
+    outside = np.abs(X[:, 1]) > 7e-3                   # beyond the elevational field of view
+    assert np.all(c[:, outside] == 0)
+    assert np.isfinite(f["u_of"].values).all()
+    assert png.stat().st_size > 1000
+
+
+def test_bad_imaging_key_is_a_user_error(tmp_path):
+    study = tmp_path / "s.yaml"
+    study.write_text(STUDY.replace("seed: 2", "sed: 2"))
+    a = _parser().parse_args(["synthesize", str(study), "--out", str(tmp_path / "b.h5")])
+    with pytest.raises(UserError, match=r"s.yaml: imaging: unknown key\(s\) \['sed'\]"):
+        a.func(a)
+    assert not (tmp_path / "b.h5").exists()
