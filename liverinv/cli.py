@@ -8,11 +8,9 @@ import importlib
 import logging
 import sys
 
+from .errors import UserError  # re-exported for the command modules
+
 COMMANDS = ["simulate", "plot", "synthesize", "track"]
-
-
-class UserError(Exception):
-    """Bad input from the user: reported as one line, exit status 2, no output written."""
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -80,8 +80,9 @@ def read_mesh(path, required=REQUIRED_GROUPS) -> TetMesh:
         raise MeshError(f"{path}: mesh file not found")
     try:
         m = meshio.read(path)
-    except Exception as e:  # meshio raises many types
-        raise MeshError(f"{path}: meshio cannot read it ({type(e).__name__}: {e})") from None
+    except (Exception, SystemExit) as e:  # meshio raises many types, and exits on some files
+        msg = " ".join(str(e).split())
+        raise MeshError(f"{path}: meshio cannot read it as a mesh ({type(e).__name__}: {msg})") from None
 
     types = [c.type for c in m.cells]
     tets = [i for i, t in enumerate(types) if t == "tetra10"]
