@@ -78,10 +78,15 @@ def read_mesh(path, required=REQUIRED_GROUPS) -> TetMesh:
     path = Path(path)
     if not path.is_file():
         raise MeshError(f"{path}: mesh file not found")
+    import contextlib
+    import io
+
+    said = io.StringIO()
     try:
-        m = meshio.read(path)
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            m = meshio.read(path)
     except (Exception, SystemExit) as e:  # meshio raises many types, and exits on some files
-        msg = " ".join(str(e).split())
+        msg = " ".join((said.getvalue() if isinstance(e, SystemExit) else str(e)).split())
         raise MeshError(f"{path}: meshio cannot read it as a mesh ({type(e).__name__}: {msg})") from None
 
     types = [c.type for c in m.cells]
