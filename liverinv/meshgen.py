@@ -11,7 +11,7 @@ Examples
 >>> from liverinv.meshgen import PRESETS, generate_indentation_mesh, summarize_mesh
 >>> path = generate_indentation_mesh("/tmp/cyl.msh", **PRESETS["fine"])  # doctest: +SKIP
 >>> summarize_mesh(path)["n_tetra10"]  # doctest: +SKIP
-2769
+2720
 
 Command line::
 
@@ -39,12 +39,15 @@ __all__ = ["generate_indentation_mesh", "summarize_mesh", "tet10_volumes", "tri6
 PHYSICAL_GROUPS = {"bottom": (2, 1), "side": (2, 2), "top_free": (2, 3), "footprint": (2, 4),
                    "tissue": (3, 5)}
 
-#: Size presets (m) comparable to the benchmark meshes: ``coarse`` (the default; 1499 nodes,
-#: 811 tet10, cf. cylinder_coarse.msh 1490 / 819) and ``fine`` (4676 nodes, 2769 tet10, cf.
-#: cylinder_fine.msh 4589 / 2798), with gmsh 4.15.
+#: Size presets (m) comparable to the benchmark meshes (gmsh 4.15): ``coarse``, the
+#: default, 1487 nodes / 836 tet10 / 30 rim nodes (cylinder_coarse.msh: 1490 / 819 / 30);
+#: ``fine``, 4487 / 2720 / 50 (cylinder_fine.msh: 4589 / 2798 / 50). Both reach the full
+#: 9.2 mm indentation of the elastic benchmark law in felupe. Meshes with a rim much finer
+#: than the footprint (e.g. h_rim = 1.2 mm with an unrefined disk) showed a local snap at
+#: the rim near d = 8.4 mm that stops Newton's method.
 PRESETS = {
-    "coarse": {"h_far": 0.022, "h_rim": 0.0016},
-    "fine": {"h_far": 0.012, "h_rim": 0.0012},
+    "coarse": {"h_far": 0.022, "h_rim": 0.0025},  # = the defaults of generate_indentation_mesh
+    "fine": {"h_far": 0.013, "h_rim": 0.0015, "h_footprint": 0.0017, "dist_max": 0.035},
 }
 
 
@@ -113,9 +116,8 @@ def _size_fields(gmsh, rim, R, H, a, h_far, h_rim, h_footprint, dist_max):
     field.setAsBackgroundMesh(background)
 
 
-def generate_indentation_mesh(path, R=0.05, H=0.0303, a=0.006, h_far=PRESETS["coarse"]["h_far"],
-                              h_rim=PRESETS["coarse"]["h_rim"], h_footprint=None, order=2,
-                              dist_max=None, seed=0):
+def generate_indentation_mesh(path, R=0.05, H=0.0303, a=0.006, h_far=0.022, h_rim=0.0025,
+                              h_footprint=None, order=2, dist_max=None, seed=0):
     """Mesh the tissue cylinder with tetrahedra refined towards the punch rim.
 
     Parameters
@@ -131,12 +133,13 @@ def generate_indentation_mesh(path, R=0.05, H=0.0303, a=0.006, h_far=PRESETS["co
     h_rim : float
         Element size at the rim circle r = a, z = H (m), ``h_rim <= h_far``.
     h_footprint : float or None
-        Optional element size on and just below the whole footprint disk (m).
+        Element size on and just below the whole footprint disk (m); default
+        ``min(1.12 h_rim, h_far)``, a nearly uniform disk as in the benchmark meshes.
     order : {1, 2}
         Element order: 2 gives ``tetra10`` (mid-edge nodes on the curved geometry).
     dist_max : float or None
         Distance from the rim over which the size grows from ``h_rim`` to ``h_far``
-        (default ``min(H, R - a)``).
+        (default ``0.9 (R - a)``).
     seed : int
         gmsh random seed (``Mesh.RandomSeed``), for reproducible meshes.
 
@@ -161,7 +164,9 @@ def generate_indentation_mesh(path, R=0.05, H=0.0303, a=0.006, h_far=PRESETS["co
     if order not in (1, 2):
         raise ValueError(f"order must be 1 or 2, got {order!r}")
     if dist_max is None:
-        dist_max = min(H, R - a)
+        dist_max = 0.9 * (R - a)
+    if h_footprint is None:
+        h_footprint = min(1.12 * h_rim, h_far)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
 
@@ -301,14 +306,12 @@ def main(argv=None):
     p.add_argument("--order", type=int, default=2, choices=(1, 2))
     args = p.parse_args(argv)
     sizes = dict(PRESETS[args.preset])
-    if args.h_far is not None:
-        sizes["h_far"] = args.h_far
-    if args.h_rim is not None:
-        sizes["h_rim"] = args.h_rim
+    for key in ("h_far", "h_rim", "h_footprint", "dist_max"):
+        if getattr(args, key) is not None:
+            sizes[key] = getattr(args, key)
     t0 = time.perf_counter()
-    path = generate_indentation_mesh(args.out, R=args.R, H=args.H, a=args.a,
-                                     h_footprint=args.h_footprint, order=args.order,
-                                     dist_max=args.dist_max, **sizes)
+    path = generate_indentation_mesh(args.out, R=args.R, H=args.H, a=args.a, order=args.order,
+                                     **sizes)
     elapsed = time.perf_counter() - t0
     if args.order == 2:
         s = summarize_mesh(path)
