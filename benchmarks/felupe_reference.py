@@ -50,7 +50,9 @@ def _kinematics(F):
     iF = np.moveaxis(np.linalg.inv(np.moveaxis(F, (0, 1), (-2, -1))), (-2, -1), (0, 1))
     iFT = np.swapaxes(iF, 0, 1)
     I1 = np.einsum("iJ...,iJ...->...", F, F)
-    return J, iFT, I1, J ** (-2.0 / 3.0)
+    with np.errstate(invalid="ignore"):  # J <= 0 gives NaN, which fails the Newton step
+        Jm23 = J ** (-2.0 / 3.0)
+    return J, iFT, I1, Jm23
 
 
 def _stress(x, C1, C2, D1):
