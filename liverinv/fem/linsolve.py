@@ -57,6 +57,9 @@ class SparseSolver:
                 if self._ps is None:
                     self._ps = _pardiso.PyPardisoSolver(mtype=11)
                     self._ps.set_statistical_info_off()
+                    # no iterative refinement: the Newton/BFGS loop corrects any small
+                    # solve error, and each refinement step costs a full solve (2.5x faster)
+                    self._ps.set_iparm(8, 0)
                 self._ps.set_phase(11)
                 self._ps._call_pardiso(K, np.zeros((K.shape[0], 1)))
                 self._pattern = pattern

@@ -50,6 +50,7 @@ class NewtonOptions:
     keep_pairs: bool = True   # carry BFGS pairs across steps until the next refactorization
     extrapolate: bool = True  # predictor from the previous increment
     solver: str | None = None  # "pardiso" or "superlu" (default: pardiso when installed)
+    keep_factorization: bool = False  # History.linear_solver keeps the last factorization
 
 
 @dataclass
@@ -63,6 +64,7 @@ class History:
     timing: dict = field(default_factory=dict)
     state: object = None          # last QLV state
     q: np.ndarray | None = None   # last reduced solution
+    linear_solver: object = None  # SparseSolver with the last factorized tangent (if kept)
 
 
 class _Engine:
@@ -262,5 +264,10 @@ def solve_history(model: Indentation, times, values, control="displacement",
                   factor_s=eng.t_factor, solve_s=eng.t_solve, residuals=eng.n_residual,
                   tangents=eng.n_tangent, factorizations=eng.lin.n_factorizations,
                   back_substitutions=eng.n_solve, solver=eng.lin.method)
-    eng.lin.free()
-    return History(times, depth, force, u, iters, cuts, timing, state, q)
+    kept = None
+    if opts.keep_factorization:
+        eng.refactor(q, times[-1] - times[-2], state, control)  # the tangent at the end state
+        kept = eng.lin
+    else:
+        eng.lin.free()
+    return History(times, depth, force, u, iters, cuts, timing, state, q, kept)
