@@ -32,11 +32,15 @@ class ForwardModel:
     mesh : path or TetMesh
     punch : "frictionless" or "bonded"
     support : "fixed" or "sliding"
+    quadrature_order : polynomial degree the tetrahedron rule integrates exactly (2: the
+        4-point rule of the peer references; 5: 14 points, more robust for neo-Hookean
+        laws near the punch rim)
     """
 
-    def __init__(self, mesh, punch="frictionless", support="fixed"):
+    def __init__(self, mesh, punch="frictionless", support="fixed", quadrature_order=2):
         self.mesh = mesh if isinstance(mesh, TetMesh) else read_mesh(mesh)
-        self.space = Space(self.mesh)
+        self.space = Space(self.mesh, intorder=quadrature_order)
+        self.quadrature_order = quadrature_order
         self.punch, self.support = punch, support
         self.mesh_sha256 = file_sha256(self.mesh.path) if self.mesh.path else "in-memory"
 
@@ -88,6 +92,7 @@ class ForwardModel:
         ds.attrs = provenance(
             law=law_name, params=params, region_params=region_params or {},
             control=history.control, punch=self.punch, support=self.support,
+            quadrature_points=int(self.space.nq),
             mesh=str(m.path) if m.path else "in-memory", mesh_sha256=self.mesh_sha256,
             solver=dict(h.timing), **(attrs or {}))
         return ds

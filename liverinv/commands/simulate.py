@@ -30,6 +30,8 @@ def register(sub):
     p.add_argument("--punch", choices=["frictionless", "bonded"])
     p.add_argument("--support", choices=["fixed", "sliding"])
     p.add_argument("--solver", choices=["bfgs", "full"], help="nonlinear solver strategy")
+    p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5],
+                   help="tetrahedron rule degree (2: 4 points, default; 5: 14 points)")
     p.add_argument("--out", required=True, help="output run file (netCDF)")
     p.set_defaults(func=run)
 
@@ -84,6 +86,8 @@ def _study_from_args(args) -> tuple[dict, Path]:
     study["contact"] = contact
     if args.solver:
         study.setdefault("solver", {})["method"] = args.solver
+    if args.quadrature_order:
+        study.setdefault("solver", {})["quadrature_order"] = args.quadrature_order
     if not study.get("mesh"):
         raise UserError("no mesh: give --mesh PATH or a study with a mesh key")
     if not study.get("law"):

@@ -1,0 +1,68 @@
+"""Load histories, study validation and the workflow's wiring."""
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from liverinv.loading import ramp_history, read_force_history
+from liverinv.study import StudyError, load_study, validate_study
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_ramp_with_steps_hits_the_peak():
+    h = ramp_history(9.2e-3, 2e-3, steps=46, unload=True)
+    assert len(h.time) == 93 and h.time[-1] == pytest.approx(9.2)
+    assert h.value[46] == pytest.approx(9.2e-3) and h.value[23] == pytest.approx(4.6e-3)
+    assert h.value[-1] == pytest.approx(0, abs=1e-15)
+    assert np.allclose(np.diff(h.value[:47]), 2e-4)
+
+
+def test_ramp_with_frames_and_hold():
+    h = ramp_history(1e-3, 1e-3, frames=31, unload=True, hold=1.0)
+    assert len(h.time) == 31 and h.time[-1] == pytest.approx(3.0)
+    assert np.allclose(h.value[(h.time >= 1) & (h.time <= 2)], 1e-3)
+    with pytest.raises(ValueError, match="exactly one"):
+        ramp_history(1e-3, 1e-3)
+    with pytest.raises(ValueError, match="positive"):
+        ramp_history(-1e-3, 1e-3, steps=2)
+
+
+def test_force_history_csv_is_validated(tmp_path):
+    p = tmp_path / "f.csv"
+    p.write_text("time_s,force_N\n0,0\n1,0.1\n")
+    h = read_force_history(p)
+    assert h.control == "force" and np.allclose(h.value, [0, 0.1])
+    p.write_text("t,F\n0,0\n1,0.1\n")
+    with pytest.raises(ValueError, match="missing column"):
+        read_force_history(p)
+    p.write_text("time_s,force_N\n0,0.2\n1,0.1\n")
+    with pytest.raises(ValueError, match="0 at time 0"):
+        read_force_history(p)
+    p.write_text("time_s,force_N\n0,0\n0,0.1\n")
+    with pytest.raises(ValueError, match="increase"):
+        read_force_history(p)
+
+
+def test_shipped_studies_validate():
+    for path in sorted((ROOT / "config" / "studies").glob("*.yaml")):
+        study, base = load_study(path)
+        assert (base / study["mesh"]).exists(), path
+
+
+def test_schema_rejects_bad_studies():
+    with pytest.raises(StudyError, match="law"):
+        validate_study({"mesh": "m.msh", "loading": {}})
+    with pytest.raises(StudyError, match="punch"):
+        validate_study({"mesh": "m.msh", "law": "SR", "loading": {}, "contact": {"punch": "glued"}})
+
+
+@pytest.mark.skipif(shutil.which("snakemake") is None, reason="snakemake not installed")
+def test_workflow_dry_run_and_lint():
+    p = subprocess.run(["snakemake", "-n", "--forceall", "--cores", "1", "--directory", str(ROOT)],
+                       capture_output=True, text=True, cwd=ROOT)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert "simulate" in p.stdout + p.stderr
