@@ -334,6 +334,7 @@ def main(argv=None):
     p.add_argument("--solver", choices=("auto", "pardiso", "superlu"), default="auto")
     p.add_argument("--linesearch", action="store_true", help="felupe LinesearchPlugin")
     p.add_argument("--max-cuts", type=int, default=0, help="step halvings after a failure")
+    p.add_argument("--maxiter", type=int, default=16, help="Newton iterations per step")
     p.add_argument("--curve", type=Path, help="write depth, force, iterations as CSV here")
     p.add_argument("-v", "--verbose", action="store_true")
     args = p.parse_args(argv)
@@ -343,7 +344,8 @@ def main(argv=None):
     lp = args.law_params
     out = run_felupe(args.mesh, lp["C1"], lp["C2"], lp["D1"], depth=args.depth,
                      steps=args.steps, unload=not args.no_unload, quadrature=args.quadrature,
-                     solver=args.solver, linesearch=args.linesearch, max_cuts=args.max_cuts)
+                     solver=args.solver, linesearch=args.linesearch, max_cuts=args.max_cuts,
+                     maxiter=args.maxiter)
     if args.curve:
         args.curve.parent.mkdir(parents=True, exist_ok=True)
         tmp = args.curve.with_name(f".{args.curve.name}.part")
