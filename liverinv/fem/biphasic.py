@@ -1,0 +1,309 @@
+r"""Biphasic (poroelastic) indentation: a hyperelastic skeleton saturated by a Darcy fluid.
+
+Mixture of intrinsically incompressible constituents (seed paper Eqs. 6-7), finite strain,
+total-Lagrangian u-p form: quadratic displacement u and linear pore pressure p on the tet10
+mesh (Taylor-Hood), pressure unknowns at the corner nodes, backward Euler in time.
+
+Constitutive relations, with F = I + Grad u, J = det F, C = F^T F::
+
+    P = F S_solid(C) - p J F^-T                 (sigma = sigma_solid - p I)
+    w = -kappa grad p,   W = J F^-1 w = -kappa J C^-1 Grad p
+
+S_solid is the reduced polynomial law (`material.hyperelastic_terms`); its D1 term acts on
+the skeleton's J, so the mixture changes volume only by fluid exchange. kappa is the
+spatial permeability (m^4/(N s)), constant and isotropic.
+
+Weak form at t_{n+1} (step dt, J_n = J at t_n), for all du and dp vanishing where u and p
+are prescribed::
+
+    R_u = int (F S_solid - p J F^-T) : Grad du dV - f_ext . du                      = 0
+    R_p = -s int dp (J - J_n) dV - s dt int kappa J (C^-1 Grad p) . Grad dp dV   = 0
+
+(mass balance J_dot + Div W = 0 times -dt s; no-flux faces are natural, p = 0 on the
+draining faces). The factor -dt makes the u-p coupling blocks transposes of each other, and
+the pressure unknown is the scaled p_hat = p / s, with s = mu0 / h (Pa/m, h a typical element
+size) so that s R_p is a force commensurate with R_u in the solver's residual norm.
+
+Linearization (spatial gradients g(.) = F^-T Grad(.), L = g(Delta u)), per element::
+
+    K_uu = solid tangent with S = S_solid - p J C^-1, whose material tangent gains
+           -p J (C^-1 (x) C^-1 - 2 C^-1 (.) C^-1)           (`material.element_stiffness`)
+    K_up[a i, b] = -s int N_b J g(N_a)_i dV                 (= K_pu^T, mass-storage part)
+    K_pu[b, a k] = K_up[a k, b] - s^2 dt kappa int J [g(N_a)_k (g p . g N_b)
+                   - (g p)_k (g N_a . g N_b) - (g N_b)_k (g N_a . g p)] dV / s
+    K_pp[b, c]   = -s^2 dt kappa int J g N_b . g N_c dV
+
+using d(J) = J tr L and d(g p . g q) = -g p . (L + L^T) g q. The only non-symmetric part is
+the permeation term of K_pu (the flux depends on the deformation); it is kept (exact Newton).
+
+Reduced unknowns: [free u dofs, punch depth d, free p dofs]; the punch entry of the residual
+is the total indenter force (solid plus fluid), so `solver.solve_history` drives this model
+unchanged. Boundary conditions: bottom fixed or sliding, frictionless or bonded punch, side
+free or laterally confined (u_x = u_y = 0), p = 0 on the `drained` groups.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from .assembly import ReducedAssembler
+from .indentation import Evaluation
+from .material import element_stiffness, hyperelastic_terms
+from .space import Space
+
+__all__ = ["Biphasic", "BiphasicState", "BiphasicEvaluation", "DRAINED_DEFAULT"]
+
+log = logging.getLogger(__name__)
+
+DRAINED_DEFAULT = ("side", "top_free")
+_VTK_EDGES = np.array([[0, 1], [1, 2], [2, 0], [0, 3], [1, 3], [2, 3]])
+
+
+@dataclass
+class BiphasicState:
+    """J at every quadrature point at the end of the last converged step."""
+    J_n: np.ndarray
+
+    def copy(self):
+        return BiphasicState(self.J_n.copy())
+
+
+@dataclass
+class BiphasicEvaluation(Evaluation):
+    J: np.ndarray = None          # (ne, nq) volume ratio
+    fe_p: np.ndarray = None       # (ne, 4) element mass residuals (scaled by s)
+
+
+def pressure_shape(space: Space):
+    """P1 shape functions (the barycentric coordinates of the corners) at the quadrature
+    points, (nq, 4), and their reference gradients (ne, nq, 4, 3), written exactly in the
+    tet10 basis: lambda_i = N_i + (N_m1 + N_m2) / 2 over the mid-edge nodes m of edges at i."""
+    cells, conn = space.mesh.cells, space.conn
+    if not np.array_equal(conn[:, :4], cells[:, :4]):
+        raise RuntimeError("tet10 space does not keep the cells' corner order")
+    # local mid dof a (4..9) -> which VTK edge of the cell it is -> its two local corners
+    hit = conn[:, 4:, None] == cells[:, None, 4:]            # (ne, 6 local, 6 vtk)
+    if not (hit.sum(-1) == 1).all():
+        raise RuntimeError("mid-edge nodes of the space and the mesh do not match")
+    vtk = hit.argmax(-1)                                      # (ne, 6)
+    if not (vtk == vtk[0]).all():
+        raise RuntimeError("local edge order varies between elements")
+    c = np.zeros((4, 10))
+    c[np.arange(4), np.arange(4)] = 1.0
+    for a, e in enumerate(vtk[0]):
+        c[_VTK_EDGES[e], 4 + a] = 0.5
+    Np = space.N @ c.T
+    dNp = np.einsum("ia,eqaj->eqij", c, space.dNdX, optimize=True)
+    return Np, np.ascontiguousarray(dNp)
+
+
+class Biphasic:
+    """Finite-strain biphasic indentation model (interface of `indentation.Indentation`).
+
+    Parameters
+    ----------
+    space : Space
+    params : dict with C1, C2, D1 (D2 optional), kappa: scalars or (ne,) arrays
+    punch : "frictionless" or "bonded"
+    support : "fixed" or "sliding" (bottom)
+    side : "free" or "confined" (u_x = u_y = 0 on the `side` nodes: confined compression)
+    drained : mesh groups with p = 0 (free draining); all other faces are impermeable
+    pressure_scale : s in Pa/m (default mu0 / h, h = median cube root of element volume)
+
+    Examples
+    --------
+    >>> model = Biphasic(Space(mesh), dict(C1=200, C2=5000, D1=1.5e-3, kappa=1e-7))
+    >>> h = solve_history(model, t, d, "displacement", NewtonOptions(method="full"))
+    """
+
+    def __init__(self, space: Space, params: dict, punch="frictionless", support="fixed",
+                 side="free", drained=DRAINED_DEFAULT, pressure_scale=None):
+        if punch not in ("frictionless", "bonded"):
+            raise ValueError(f"punch contact must be 'frictionless' or 'bonded', not {punch!r}")
+        if support not in ("fixed", "sliding"):
+            raise ValueError(f"support must be 'fixed' or 'sliding', not {support!r}")
+        if side not in ("free", "confined"):
+            raise ValueError(f"side must be 'free' or 'confined', not {side!r}")
+        self.space, self.punch, self.support, self.side = space, punch, support, side
+        self.drained = tuple(drained)
+        mesh = space.mesh
+        n = mesh.n_nodes
+        self.footprint = mesh.nodes("footprint")
+        fixed = np.zeros((n, 3), dtype=bool)
+        bottom = mesh.nodes("bottom")
+        if support == "fixed":
+            fixed[bottom] = True
+        else:
+            fixed[bottom, 2] = True
+            X = mesh.points[bottom]
+            fixed[bottom[np.argmin(np.hypot(X[:, 0], X[:, 1]))], :2] = True
+            fixed[bottom[np.argmax(X[:, 0])], 1] = True
+        if side == "confined":
+            fixed[mesh.nodes("side"), :2] = True
+        if punch == "bonded":
+            fixed[self.footprint, :2] = True
+        tied = np.zeros((n, 3), dtype=bool)
+        tied[self.footprint, 2] = True
+        fixed[tied] = False
+        free = ~fixed & ~tied
+        # pressure dofs: one per corner node, full numbering 3 n + corner id
+        self.p_nodes = mesh.corner_nodes()
+        corner_id = -np.ones(n, dtype=np.int64)
+        corner_id[self.p_nodes] = np.arange(len(self.p_nodes))
+        self.p_elem = corner_id[space.conn[:, :4]]                       # (ne, 4)
+        dry = np.zeros(n, dtype=bool)
+        for g in self.drained:
+            dry[mesh.nodes(g)] = True
+        p_free = ~dry[self.p_nodes]
+        self.n_full = 3 * n + len(self.p_nodes)
+        n_free = int(free.sum())
+        index = -np.ones(self.n_full, dtype=np.int64)
+        index[:3 * n][free.ravel()] = np.arange(n_free)
+        index[:3 * n][tied.ravel()] = n_free
+        index[3 * n:][p_free] = n_free + 1 + np.arange(int(p_free.sum()))
+        sign = np.ones(self.n_full)
+        sign[:3 * n][tied.ravel()] = -1.0
+        self.n_free, self.punch_index = n_free, n_free
+        self.n_red = n_free + 1 + int(p_free.sum())
+        self.p_drained = ~p_free
+        self.edofs = np.concatenate([space.edofs, 3 * n + self.p_elem], axis=1)   # (ne, 34)
+        self.asm = ReducedAssembler(self.edofs, index, sign, self.n_red)
+        self.punch_positions = self.asm.positions(row=self.punch_index, col=self.punch_index)
+        self.punch_diag = np.nonzero((self.asm.rows[self.punch_positions] == self.punch_index)
+                                     & (self.asm.indices[self.punch_positions] == self.punch_index))[0]
+        self.Np, self.dNpdX = pressure_shape(space)
+        self._pressure_scale = pressure_scale
+        self.set_params(params)
+        log.debug("biphasic: %d u unknowns, %d free of %d pressure nodes, s = %.3g Pa/m",
+                  n_free, int(p_free.sum()), len(self.p_nodes), self.s)
+
+    # -- material ----------------------------------------------------------------------
+    def set_params(self, params: dict):
+        """Set C1, C2, D1, (D2), kappa: scalars or per-element arrays."""
+        ne = self.space.mesh.n_elements
+        col = lambda v: (lambda a: a.reshape(ne, 1) if a.ndim == 1 else a)(np.asarray(v, dtype=float))
+        missing = [k for k in ("C1", "C2", "D1", "kappa") if k not in params]
+        if missing:
+            raise ValueError(f"biphasic model needs parameter(s) {missing}")
+        self.params = dict(params)
+        self._C1, self._C2, self._D1 = col(params["C1"]), col(params["C2"]), col(params["D1"])
+        D2 = col(params.get("D2", np.inf))
+        self._D2inv = np.where(np.isinf(D2), 0.0, 1.0 / np.where(np.isinf(D2), 1.0, D2))
+        self._kappa = col(params["kappa"])
+        if np.any(~np.isfinite(self._kappa)) or np.any(self._kappa < 0):
+            raise ValueError("kappa must be finite and >= 0")
+        if self._pressure_scale is None:
+            h = np.median(np.cbrt(self.space.dV.sum(axis=1)))
+            self.s = float(2.0 * np.mean(self._C1) / h)
+        else:
+            self.s = float(self._pressure_scale)
+
+    def new_state(self) -> BiphasicState:
+        return BiphasicState(np.ones(self.space.dV.shape))
+
+    # -- fields --------------------------------------------------------------------------
+    def displacement(self, q) -> np.ndarray:
+        """(n_nodes, 3) nodal displacement of reduced unknowns q."""
+        return self.asm.expand(q)[: 3 * self.space.mesh.n_nodes].reshape(-1, 3)
+
+    def pressure(self, q) -> np.ndarray:
+        """Pore pressure (Pa) at the corner nodes `p_nodes`."""
+        return self.s * self.asm.expand(q)[3 * self.space.mesh.n_nodes:]
+
+    # -- residual and tangent ------------------------------------------------------------
+    def evaluate(self, q, dt, state: BiphasicState, tangent=True) -> BiphasicEvaluation:
+        """Reduced residual [R_u, indenter force, s R_p] and tangent at q for a step dt."""
+        sp, s = self.space, self.s
+        F = sp.deformation_gradient(self.displacement(q))
+        S_iso, S_vol, t, J = hyperelastic_terms(F, self._C1, self._C2, self._D1, self._D2inv)
+        pe = self.pressure(q)[self.p_elem]                                 # (ne, 4)
+        p = pe @ self.Np.T                                                 # (ne, nq)
+        Gp = np.einsum("eqij,ei->eqj", self.dNpdX, pe)                     # Grad p
+        Ci = t["Ci"]
+        Jp = J * p
+        S = S_iso + S_vol - Jp[..., None, None] * Ci
+        fe_u = sp.internal_force(F @ S)
+        kdt = self._kappa * dt * J * sp.dV                                 # (ne, nq)
+        CiGp = np.einsum("eqij,eqj->eqi", Ci, Gp)
+        fe_p = -s * (np.einsum("qa,eq->ea", self.Np, (J - state.J_n) * sp.dV)
+                     + np.einsum("eqaj,eqj->ea", self.dNpdX, kdt[..., None] * CiGp))
+        r = self.asm.vector(np.concatenate([fe_u, fe_p], axis=1))
+        K = None
+        if tangent:
+            K = self.asm.matrix(self._element_tangent(F, S, t, J, p, Gp, Ci, kdt))
+        return BiphasicEvaluation(r, K, S_iso, S_vol, float(J.min()), J=J, fe_p=fe_p)
+
+    def _element_tangent(self, F, S, t, J, p, Gp, Ci, kdt):
+        sp, s = self.space, self.s
+        ne = len(F)
+        t = dict(t, c_CiCi_vol=t["c_CiCi_vol"] - J * p, c_sym_vol=t["c_sym_vol"] + 2.0 * J * p)
+        Ke = np.empty((ne, 34, 34))
+        Ke[:, :30, :30] = element_stiffness(sp.dNdX, sp.dV, F, S, t, 1.0, 1.0)
+        Finv = Ci @ np.swapaxes(F, -1, -2)
+        gN = sp.dNdX @ Finv                                   # (ne, nq, 10, 3) spatial
+        gNp = self.dNpdX @ Finv                               # (ne, nq, 4, 3)
+        gp = np.einsum("eqj,eqjk->eqk", Gp, Finv)             # (ne, nq, 3)
+        Kup = -s * np.einsum("eqai,qb,eq->eaib", gN, self.Np, J * sp.dV, optimize=True).reshape(ne, 30, 4)
+        Ke[:, :30, 30:] = Kup
+        c = -s * kdt                                          # s R_p permeation: -s dt kappa J dV
+        gp_gNp = np.einsum("eqk,eqbk->eqb", gp, gNp)
+        gN_gNp = np.einsum("eqak,eqbk->eqab", gN, gNp)
+        gN_gp = np.einsum("eqak,eqk->eqa", gN, gp)
+        Kperm = (np.einsum("eq,eqak,eqb->ebak", c, gN, gp_gNp, optimize=True)
+                 - np.einsum("eq,eqk,eqab->ebak", c, gp, gN_gNp, optimize=True)
+                 - np.einsum("eq,eqbk,eqa->ebak", c, gNp, gN_gp, optimize=True))
+        Ke[:, 30:, :30] = np.swapaxes(Kup, 1, 2) + Kperm.reshape(ne, 4, 30)
+        Ke[:, 30:, 30:] = s * np.einsum("eq,eqbk,eqck->ebc", c, gNp, gNp, optimize=True)
+        return Ke
+
+    def commit(self, state: BiphasicState, ev: BiphasicEvaluation, dt) -> BiphasicState:
+        """History after a converged step: J_n <- J."""
+        return BiphasicState(ev.J.copy())
+
+    def fix_punch(self, K):
+        """Make the punch depth a prescribed unknown in K (displacement control)."""
+        K.data[self.punch_positions] = 0.0
+        K.data[self.punch_positions[self.punch_diag]] = 1.0
+        return K
+
+    # -- diagnostics ---------------------------------------------------------------------
+    def drained_outflow(self, ev: BiphasicEvaluation) -> float:
+        """Fluid volume (m^3) leaving through the draining faces during the step that ended
+        at `ev`: minus the sum of the mass residuals of the drained pressure nodes (their
+        'reaction fluxes'); the free nodes' residuals vanish at convergence."""
+        Rp = np.bincount(self.p_elem.ravel(), weights=ev.fe_p.ravel(), minlength=len(self.p_nodes))
+        return float(Rp[self.p_drained].sum() / self.s)
+
+    def volume_change(self, ev: BiphasicEvaluation) -> float:
+        """V - V0 (m^3) of the body at `ev`, int (J - 1) dV."""
+        return float(((ev.J - 1.0) * self.space.dV).sum())
+
+    def fluid_force(self, q) -> float:
+        """Vertical force (N, compressive positive) of the pore pressure on the punch:
+        int p da_z over the deformed footprint (3-point edge-midpoint rule, exact here)."""
+        mesh = self.space.mesh
+        tri = mesh.facets["footprint"]
+        x = mesh.points[tri] + self.displacement(q)[tri]          # (nf, 6, 3)
+        pn = np.zeros(mesh.n_nodes)
+        pn[self.p_nodes] = self.pressure(q)
+        pc = pn[tri[:, :3]]
+        out = 0.0
+        for xi, eta in ((0.5, 0.0), (0.5, 0.5), (0.0, 0.5)):
+            dN = _tri6_grad(xi, eta)                              # (6, 2)
+            a = np.einsum("fnk,nd->fdk", x, dN)
+            A0 = np.einsum("fnk,nd->fdk", mesh.points[tri], dN)
+            jz = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+            jz0 = A0[:, 0, 0] * A0[:, 1, 1] - A0[:, 0, 1] * A0[:, 1, 0]
+            pq = pc @ np.array([1 - xi - eta, xi, eta])
+            out += (pq * jz * np.sign(jz0)).sum() / 6.0
+        return float(out)
+
+
+def _tri6_grad(xi, eta):
+    """Gradients (6, 2) of the triangle6 shape functions (corners, then mid 01, 12, 20)."""
+    l0 = 1 - xi - eta
+    return np.array([[1 - 4 * l0, 1 - 4 * l0], [4 * xi - 1, 0.0], [0.0, 4 * eta - 1],
+                     [4 * (l0 - xi), -4 * xi], [4 * eta, 4 * xi], [-4 * eta, 4 * (l0 - eta)]])
