@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from .fem.biphasic import DRAINED_DEFAULT, Biphasic
 from .fem.indentation import Indentation
 from .fem.solver import NewtonOptions, solve_history
 from .fem.space import Space
@@ -35,13 +36,17 @@ class ForwardModel:
     quadrature_order : polynomial degree the tetrahedron rule integrates exactly (2: the
         4-point rule of the peer references; 5: 14 points, more robust for neo-Hookean
         laws near the punch rim)
+    drained : mesh groups with free draining (p = 0) for biphasic laws; other faces are
+        impermeable
     """
 
-    def __init__(self, mesh, punch="frictionless", support="fixed", quadrature_order=2):
+    def __init__(self, mesh, punch="frictionless", support="fixed", quadrature_order=2,
+                 drained=DRAINED_DEFAULT):
         self.mesh = mesh if isinstance(mesh, TetMesh) else read_mesh(mesh)
         self.space = Space(self.mesh, intorder=quadrature_order)
         self.quadrature_order = quadrature_order
         self.punch, self.support = punch, support
+        self.drained = tuple(drained)
         self.mesh_sha256 = file_sha256(self.mesh.path) if self.mesh.path else "in-memory"
 
     def element_params(self, law_name, params, region_params=None) -> dict:
@@ -61,14 +66,21 @@ class ForwardModel:
                 out[k][sel] = merged[k]
         return out
 
-    def model(self, law_name, params, region_params=None) -> Indentation:
+    def model(self, law_name, params, region_params=None) -> Indentation | Biphasic:
+        if get_law(law_name).biphasic:
+            return Biphasic(self.space, self.element_params(law_name, params, region_params),
+                            punch=self.punch, support=self.support, drained=self.drained)
         return Indentation(self.space, self.element_params(law_name, params, region_params),
                            punch=self.punch, support=self.support)
 
     def run(self, law_name, params, history: LoadHistory, options: NewtonOptions | None = None,
             region_params=None, attrs=None) -> xr.Dataset:
         model = self.model(law_name, params, region_params)
-        h = solve_history(model, history.time, history.value, history.control, options)
+        record = _BiphasicRecord(model, len(history.time)) if isinstance(model, Biphasic) else None
+        h = solve_history(model, history.time, history.value, history.control, options, record)
+        if record is not None:
+            h.p, h.fluid_load_fraction = record.p, record.fluid_fraction(h.force)
+            h.p_nodes = model.p_nodes
         law = get_law(law_name)
         resolved = law.resolve(params)
         return self.to_dataset(h, law_name, {k: resolved[k] for k in law.free} | dict(law.fixed),
@@ -89,13 +101,37 @@ class ForwardModel:
             ),
             coords=dict(time=("time", h.time, {"units": "s"}), component=["x", "y", "z"]),
         )
+        if getattr(h, "p", None) is not None:
+            ds["p"] = (("time", "pnode"), h.p, {"units": "Pa", "long_name": "pore pressure at the corner nodes"})
+            ds = ds.assign_coords(pnode=("pnode", h.p_nodes, {"long_name": "mesh node of each pressure value"}))
+            ds["fluid_load_fraction"] = ("time", h.fluid_load_fraction, {
+                "units": "1", "long_name": "share of the indenter force carried by the pore pressure"})
         ds.attrs = provenance(
             law=law_name, params=params, region_params=region_params or {},
             control=history.control, punch=self.punch, support=self.support,
             quadrature_points=int(self.space.nq),
+            **({"drained": list(self.drained)} if getattr(h, "p", None) is not None else {}),
             mesh=str(m.path) if m.path else "in-memory", mesh_sha256=self.mesh_sha256,
             solver=dict(h.timing), **(attrs or {}))
         return ds
+
+
+class _BiphasicRecord:
+    """Pore pressure and fluid force on the punch at every frame of a biphasic run."""
+
+    def __init__(self, model: Biphasic, n):
+        self.model = model
+        self.p = np.zeros((n, len(model.p_nodes)))
+        self.fluid = np.zeros(n)
+
+    def __call__(self, k, q, ev):
+        self.p[k] = self.model.pressure(q)
+        self.fluid[k] = self.model.fluid_force(q)
+
+    def fluid_fraction(self, force):
+        """Fluid force / indenter force; NaN where the indenter force is ~0."""
+        ok = np.abs(force) > 1e-6 * max(np.abs(force).max(), 1e-30)
+        return np.where(ok, self.fluid / np.where(ok, force, 1.0), np.nan)
 
 
 def simulate(mesh, law, params, history: LoadHistory, punch="frictionless", support="fixed",

@@ -108,6 +108,9 @@ LAWS = {law.name: law for law in [
     Law("SBR", "QLV, shear and bulk relaxation (Eqs. 9-11)",
         ("C1", "C2", "D1", "D2", "g1", "tau_g1", "k1", "tau_k1"),
         defaults=dict(_HYPER, D2=1e-2, g1=0.4, tau_g1=0.06, k1=0.5, tau_k1=0.1)),
+    Law("PE", "biphasic poroelastic: reduced polynomial skeleton (Eq. 6) saturated by a Darcy "
+        "fluid of permeability kappa (Eq. 7)", ("C1", "C2", "D1", "kappa"),
+        defaults=dict(_HYPER, kappa=1e-7), biphasic=True),
 ]}
 
 

@@ -142,6 +142,9 @@ def test_undrained_unconfined_compression_is_incompressible():
     Wp = SOLID["C1"] + 2 * SOLID["C2"] * (I1 - 3)
     F_exact = 2 * Wp * (lam**2 - 1 / lam) * L**2 / lam
     assert h.force[-1] == pytest.approx(-F_exact, rel=1e-7)
+    p_exact = 2 * Wp * (1 / lam - I1 / 3)  # lateral faces traction free
+    assert np.allclose(m.pressure(h.q), p_exact, rtol=1e-7)
+    assert m.fluid_force(h.q) == pytest.approx(p_exact * L**2 / lam, rel=1e-7)
 
 
 def test_drained_limit_is_elastic(coarse_mesh):
@@ -202,3 +205,17 @@ def test_febio_poroelastic_reference(coarse_mesh):
     assert h8.force[-1] == pytest.approx(0.220266, rel=1e-5)
     h4 = solve_history(Biphasic(Space(coarse_mesh), PE), t, 2e-3 * t)
     assert h4.force[-1] == pytest.approx(0.220266, rel=0.01)
+
+
+def test_forward_dataset_has_pressure_and_fluid_load_fraction(coarse_forward):
+    """`ForwardModel.run` with law PE: p(time, pnode) at the corner nodes (0 on the draining
+    faces) and the fluid load fraction, between 0 and 1 on loading."""
+    from liverinv.loading import LoadHistory
+    hist = LoadHistory("displacement", np.linspace(0, 0.5, 4), np.linspace(0, 1e-3, 4))
+    ds = coarse_forward.run("PE", dict(kappa=1e-7), hist)
+    assert ds.p.dims == ("time", "pnode") and ds.sizes["pnode"] == len(coarse_forward.mesh.corner_nodes())
+    dry = np.isin(ds.pnode.values, coarse_forward.mesh.nodes("side"))
+    assert np.all(ds.p.values[:, dry] == 0) and ds.p.values[-1].max() > 0
+    f = ds.fluid_load_fraction.values
+    assert np.isnan(f[0]) and np.all((f[1:] > 0) & (f[1:] < 1))
+    assert ds.attrs["law"] == "PE" and "drained" in ds.attrs
