@@ -89,8 +89,11 @@ def main():
     ap.add_argument("--truth", type=Path, default=None)
     ap.add_argument("--stride", type=int, nargs=3, default=(2, 2, 1))
     ap.add_argument("--iterations", type=int, default=2)
-    ap.add_argument("--galerkin-iterations", type=int, default=2)
     ap.add_argument("--reuse", action="store_true", help="reuse bundles already in --workdir")
+    ap.add_argument("--render-only", action="store_true", help="only write the bundles")
+    ap.add_argument("--window", default="subtet", choices=["subtet", "element"])
+    ap.add_argument("--bias-correction", type=int, default=0)
+    ap.add_argument("--interpolated-iterations", type=int, default=2)
     args = ap.parse_args()
     args.workdir.mkdir(parents=True, exist_ok=True)
     P, C = mesh_arrays(str(MESH))
@@ -109,10 +112,12 @@ def main():
         if not (args.reuse and path.is_file()):
             t_make = make_bundle(path, case, ds, times, vw, grid, seed=10 + ci)
             print(f"[{case}] rendered {len(times)} volumes in {t_make:.0f} s", flush=True)
-        opts = TrackOptions(max_iterations=args.iterations,
-                            galerkin_iterations=args.galerkin_iterations)
+        if args.render_only:
+            continue
+        opts = TrackOptions(max_iterations=args.iterations, bias_correction=args.bias_correction,
+                            interpolated_iterations=args.interpolated_iterations)
         with open_bundle(path) as b:
-            flow = track_bundle(b, P, C, opts, stride=tuple(args.stride))
+            flow = track_bundle(b, P, C, opts, stride=tuple(args.stride), window=args.window)
             est = grid.vec_to_vox(flow["u_of"].values)
             cmin = flow["c_of"].values.min(-1)
             e = errors(est, true_vox)

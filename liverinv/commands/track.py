@@ -17,11 +17,14 @@ def register(subparsers):
     p.add_argument("--mesh", type=Path, required=True, help="tracking mesh (gmsh tet10)")
     p.add_argument("--out", type=Path, required=True, help="flow file to write (.nc)")
     p.add_argument("--iterations", type=int, default=2,
-                   help="max translation-model (Eq. A.2) iterations (2)")
-    p.add_argument("--galerkin-iterations", type=int, default=2,
-                   help="then max iterations with the interpolated-motion model (2; 0 = off)")
-    p.add_argument("--window", choices=["element", "subtet"], default="element",
-                   help="corner-node neighbourhood: all elements around it (paper) or sub-tets")
+                   help="max warp-and-re-solve iterations per frame pair (2)")
+    p.add_argument("--interpolated-iterations", type=int, default=2,
+                   help="then iterations with the interpolated motion as the model (2)")
+    p.add_argument("--bias-correction", type=int, default=0,
+                   help="Neumann terms of the window-average bias correction (0 = off)")
+    p.add_argument("--window", choices=["subtet", "element"], default="subtet",
+                   help="node neighbourhood weights: sub-tet hats (default) or, for corner "
+                        "nodes, the linear shape function of every element around it")
     p.add_argument("--tol-vox", type=float, default=5e-4,
                    help="stop refining when the largest correction is below this (voxels)")
     p.add_argument("--stride", type=int, nargs=3, default=(2, 2, 1), metavar=("L", "E", "A"),
@@ -64,11 +67,13 @@ def run(args) -> int:
     from ..imaging.tracking import TrackOptions
 
     points, cells = read_tracking_mesh(args.mesh)
-    if args.iterations < 1 or min(args.stride) < 1 or args.galerkin_iterations < 0:
-        raise UserError("--iterations and --stride must be >= 1, --galerkin-iterations >= 0")
+    if (args.iterations < 1 or min(args.stride) < 1 or args.bias_correction < 0
+            or args.interpolated_iterations < 0):
+        raise UserError("--iterations and --stride must be >= 1, --bias-correction and "
+                        "--interpolated-iterations >= 0")
     opts = TrackOptions(max_iterations=args.iterations, tol_vox=args.tol_vox,
-                        confidence=args.confidence,
-                        galerkin_iterations=args.galerkin_iterations)
+                        confidence=args.confidence, bias_correction=args.bias_correction,
+                        interpolated_iterations=args.interpolated_iterations)
     with open_bundle(args.bundle) as b:
         if b.n_frames < 2:
             raise UserError(f"{args.bundle}: /volumes/data holds {b.n_frames} volume; tracking needs 2")

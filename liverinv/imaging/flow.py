@@ -27,7 +27,7 @@ __all__ = ["track_bundle"]
 
 
 def track_bundle(bundle: Bundle, points, cells, options: TrackOptions | None = None,
-                 stride=(2, 2, 1), frames=None, window="element") -> xr.Dataset:
+                 stride=(2, 2, 1), frames=None, window="subtet") -> xr.Dataset:
     """Nodal Lucas-Kanade flow of every consecutive frame pair of `bundle` (see module doc).
 
     `frames` optionally restricts tracking to the first `frames` volumes."""

@@ -6,32 +6,45 @@ elements around the node, each row weighted by the node's shape function N_n,i (
 
     sum_i N_n,i g_i g_i^T v_n = - sum_i N_n,i g_i dI_i,
 
-with g the spatial gradient (average of the two frames, which cancels the first-order
-error of one-sided gradients) and dI the frame difference. All nodes are solved at once:
-with W the sparse (node x voxel) weight matrix of `weights.VoxelWeights`, the six
-gradient products and three right-hand-side products are one sparse matrix product.
+with g the spatial gradient of frame k (central differences) and dI the frame difference.
+All nodes are solved at once: the six gradient products are one sparse product with the
+(node x voxel) weight matrix W of `weights.VoxelWeights` (built once per mesh and grid),
+the 3 x 3 systems are inverted together.
 
-Following the material point. Tracking is Lagrangian: the voxels of a node's neighbourhood
-are the *reference* voxels inside its elements, and at frame k they are looked up where the
-tissue has moved to, ``x = X + U_k(X)``, with U_k the motion accumulated so far
-(interpolated from the nodes by the same hat functions). So the neighbourhood used between
-frames k and k+1 is the node's deformed neighbourhood at frame k, it moves and deforms with
-the tissue, and W is built only once per mesh and image grid.
+Following the material point. Tracking is Lagrangian: a node's neighbourhood is the set of
+*reference* voxels inside its elements, and at frame k they are looked up where the tissue
+has moved to, ``x = X + U_k(X)``, U_k the motion accumulated over the previous pairs,
+interpolated from the nodes with the mesh's shape functions. So the neighbourhood used
+between frames k and k+1 is the node's deformed neighbourhood at frame k: it moves and
+deforms with the tissue, and W never changes. Frame k's values there are those sampled at
+the end of the previous pair (no re-interpolation).
 
-Iterative refinement. Frame k+1 is sampled at ``X + U_k + V(X)``, V the current estimate of
-the nodal motion interpolated to the voxels (cubic B-splines), and the system is solved again
-for the correction, until the largest correction is below `tol_vox`. The first estimate is
-the previous frame pair's motion (warm start). With one iteration and no warm start this
-is exactly the paper's single-pass estimate; at convergence the nodal values satisfy the
-Galerkin condition ``sum_i N_n,i g_i r_i = 0`` of the residual r of the motion field
-interpolated from the nodes, which removes the bias of a plain window average near
-surfaces and in strain gradients.
+Iterative refinement (warp and re-solve). Frame k+1 is sampled with cubic B-splines at
+``X + U_k + V(X)``, V the current nodal estimate interpolated to the voxels, each node's
+rows are moved to its own translation by a first-order correction
+``I(p + v_n) ~ I(p + V) + g . (v_n - V)``, and the system is solved again for the
+correction, up to `max_iterations` times or until the largest correction is below `tol_vox`.
+The first estimate is the previous pair's motion (warm start); with one iteration and no
+warm start this is exactly the paper's single-pass estimate.
+
+Stage 2, interpolated model (`interpolated_iterations`, default 2): the translation
+estimate is a texture-weighted window average of the motion, biased where the motion
+varies over the window (strain gradients, one-sided windows at surfaces, uneven texture).
+Then each confident node's window is compared at the interpolated motion V(p) itself and
+the correction solved with the node's own system (block Jacobi on the joint least-squares
+problem of all nodes); its fixed point has no window-average bias for motion the mesh can
+represent. Nodes below `interpolated_min_confidence` keep their stage-1 values so that
+poorly determined nodes cannot disturb their neighbours.
+
+Optional window-bias correction (`bias_correction` > 0): the translation estimate is the
+window average of the motion, ``v_local ~ B v``; Neumann terms of B^-1 reduce the bias of
+strain gradients and one-sided windows at surfaces (at some cost in noise).
 
 Confidence (A.4): ``c_n,j = sum_i N_n,i |dI_i/dj|`` over the voxels in view, normalized by the
 largest nodal value of the frame pair so c lies in [0, 1]. Nodes whose current position is
 outside the volume, or with less than `min_coverage` of their weight inside it, get c = 0.
 With ``confidence="mean"`` the sum is divided by the weight in view (a texture measure that
-does not grow with element size).
+does not grow with the neighbourhood).
 """
 
 from __future__ import annotations
@@ -62,8 +75,9 @@ class TrackOptions:
     confidence: str = "sum"
     regularization: float = 1e-4
     presmooth_vox: float = 0.0
-    galerkin_iterations: int = 0
-    bias_correction: int = 1
+    bias_correction: int = 0
+    interpolated_iterations: int = 2
+    interpolated_min_confidence: float = 0.05
 
     def __post_init__(self):
         if self.confidence not in ("sum", "mean"):
@@ -180,6 +194,29 @@ class NodalTracker:
                 break
         self.v_local = v.copy()
         self.iterations = it
+        # Stage 2 (optional): the interpolated motion as the model. Each strong node's
+        # window is compared at the interpolated field V(p) itself (no translation
+        # correction), and the correction solved with the node's own system (block Jacobi
+        # on the joint least-squares problem of all nodes): the fixed point has no
+        # window-average bias for motion the mesh can represent. Weak nodes keep their
+        # stage-1 values, so they cannot disturb their neighbours.
+        strong = live & (c.min(1) >= opt.interpolated_min_confidence)
+        if opt.interpolated_iterations > 0:
+            v = self._fill(v, live)
+        for _ in range(opt.interpolated_iterations):
+            v_at = v
+            vt = self.vw.interpolate(v)
+            pos = base + vt
+            inside = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
+            J1 = ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror")
+            self.iterations += 1
+            dI = (J1[cols] - J0p) * inside[cols]
+            b = np.stack([np.bincount(rows, gp[:, j] * dI, minlength=self.n) for j in range(3)], 1)
+            delta = -np.einsum("nij,nj->ni", Ainv, b)
+            delta[~strong] = 0.0
+            v = v + delta
+            if (np.abs(delta).max() if strong.any() else 0.0) < opt.tol_vox:
+                break
         # Stage 2 (optional): window-bias correction. The translation estimate is the window
         # average of the motion field, v_local ~ B v with B v = A_n^-1 sum_i N_n,i g g^T (Ni v)_i
         # (Ni: interpolation). Neumann terms of B^-1 remove the bias of strain gradients and
@@ -195,7 +232,8 @@ class NodalTracker:
                 term = term - Bt
                 term[~live] = 0.0
                 v = v + term
-        v[cover <= 0] = 0.0
+        if opt.interpolated_iterations == 0:
+            v[cover <= 0] = 0.0
         # frame k+1 where the material now is (where it was last sampled): next pair's start
         self.U = self.U + v_at
         self.J, self.valid = J1, inside
@@ -204,21 +242,25 @@ class NodalTracker:
         self.v = v
         return v, c
 
-    def _galerkin_matrix(self, g):
-        """LU factors of K = sum_i Ni Ni^T g_i g_i^T (3n x 3n, component-major) plus a small
-        relative diagonal term for nodes without data."""
-        import scipy.sparse as sp
-        from scipy.sparse.linalg import splu
-        Wi, WT = self.vw.Wi, self.vw.WT
-        blocks = {}
-        for a, b in _PAIRS:
-            blocks[a, b] = (Wi.multiply(g[:, a] * g[:, b]) @ WT).tocsr()
-        K = sp.bmat([[blocks[min(a, b), max(a, b)] for b in range(3)] for a in range(3)],
-                    format="csc")
-        d = K.diagonal()
-        scale = d[d > 0].mean() if np.any(d > 0) else 1.0
-        K = K + sp.diags(self.opt.regularization * d + 1e-6 * scale)
-        return splu(K.tocsc())
+    def _fill(self, v, known, sweeps: int = 20):
+        """Nodes not `known` take the mean of their known (or already filled) neighbours
+        (mesh adjacency), so nodes without data do not distort the interpolated motion."""
+        A = self.vw.adjacency
+        if A is None or known.all():
+            return v
+        v = v.copy()
+        have = known.astype(float)
+        for _ in range(sweeps):
+            todo = have == 0
+            if not todo.any():
+                break
+            cnt = A @ have
+            new = todo & (cnt > 0)
+            if not new.any():
+                break
+            v[new] = (A @ (v * have[:, None]))[new] / cnt[new, None]
+            have[new] = 1.0
+        return v
 
     @property
     def _pairs(self):

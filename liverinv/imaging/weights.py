@@ -4,17 +4,21 @@ Choice of shape functions. Every tet10 element is split into 8 linear sub-tetrah
 vertices are its corner and mid-edge nodes (4 corner tets plus the inner octahedron cut
 along one diagonal).
 
-* Interpolation (`Wi`, nodal motion -> voxels): each node, corner or mid-side, has the
-  linear "hat" of the sub-tets around it (a P1 field on the refined mesh). The hats are
-  non-negative and sum to one at every voxel.
-* Tracking windows (`W`, the weights N_i of Eqs. A.2-A.4), ``window="element"`` (default):
-  a corner node gets the linear tetrahedral shape function of each element around it
-  (the paper's choice: Zienkiewicz's linear tet on the element's 4 corners), so its
-  neighbourhood is all elements around it; a mid-side node, which has no linear shape
-  function, gets its sub-tet hat (a neighbourhood about half as wide: less texture, so
-  lower Eq. A.4 confidence). ``window="subtet"`` uses the sub-tet hats for every node.
-  The quadratic tet10 functions are not used: they are negative in parts of the element
-  and would give negative least-squares weights.
+* Tracking windows (`W`, the weights N_i of Eqs. A.2-A.4). ``window="subtet"`` (default):
+  every node, corner or mid-side, has the linear tetrahedral shape function (Zienkiewicz)
+  of the sub-tets around it, a "hat" on the refined P1 mesh; non-negative, summing to one
+  at every voxel. ``window="element"``: a corner node gets the linear shape function of
+  each whole element around it (its neighbourhood is all elements around it), a mid-side
+  node, which has no linear shape function, keeps its sub-tet hat. Quadratic tet10
+  functions are not used as weights: they are negative in parts of the element.
+  On the coarse benchmark mesh the sub-tet windows track more accurately (the element
+  windows of large elements average the motion over strain gradients: a bias), see
+  benchmarks/bench_tracking.py.
+* Interpolation (`Wi`, nodal motion -> voxels, used to place the neighbourhoods where the
+  tissue has moved): ``interpolation="p1"`` (default) the sub-tet hats (the same functions
+  as the windows); ``"p2"`` the tet10 quadratic shape functions on the straight-sided
+  element (reproduces a forward run's field on this mesh; measured no more accurate on
+  the benchmark and slower).
 
 The weights are built once per mesh and image grid (`VoxelWeights.build`).
 """
@@ -95,15 +99,29 @@ class VoxelWeights:
     grid: ImageGrid
     n_nodes: int
     Wi: sp.csr_matrix | None = None
+    adjacency: sp.csr_matrix | None = None
 
     def __post_init__(self):
         if self.Wi is None:
             self.Wi = self.W
         self.WT = self.Wi.T.tocsr()
 
+    @staticmethod
+    def node_adjacency(cells, n) -> sp.csr_matrix:
+        """(n, n) 0/1 matrix: nodes that share an element (without the diagonal)."""
+        cells = np.asarray(cells)
+        k = cells.shape[1]
+        r = np.repeat(cells, k, axis=1).ravel()
+        c = np.tile(cells, (1, k)).ravel()
+        A = sp.csr_matrix((np.ones(len(r)), (r, c)), shape=(n, n))
+        A.setdiag(0)
+        A.eliminate_zeros()
+        A.data[:] = 1.0
+        return A
+
     @classmethod
     def build(cls, points, cells, grid: ImageGrid, stride=(1, 1, 1),
-              window: str = "element", interpolation: str = "p2") -> "VoxelWeights":
+              window: str = "subtet", interpolation: str = "p1") -> "VoxelWeights":
         """Locate every voxel centre of `grid` in the sub-tets of the mesh (reference
         configuration `points`, m) and build the sparse weight matrix.
 
@@ -186,7 +204,8 @@ class VoxelWeights:
             W = sp.csr_matrix((np.concatenate([lam.ravel(), w[mid]]), (rows, cc)), shape=(n, m))
         log.info("voxel weights: %d of %d voxels inside the mesh, %d window nonzeros",
                  m, grid.size, W.nnz)
-        return cls(voxels=vox, W=W, grid=grid, n_nodes=n, Wi=Wi)
+        return cls(voxels=vox, W=W, grid=grid, n_nodes=n, Wi=Wi,
+                   adjacency=cls.node_adjacency(cells, n))
 
     def interpolate(self, nodal: np.ndarray) -> np.ndarray:
         """Nodal values (n, ...) interpolated to the active voxels (m, ...)."""

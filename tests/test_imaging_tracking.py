@@ -1,0 +1,93 @@
+"""Nodal Lucas-Kanade tracking: rigid sub-voxel translation and a smooth known field."""
+
+import numpy as np
+import pytest
+
+from liverinv.imaging.analytic import box_tet10
+from liverinv.imaging.grid import ImageGrid
+from liverinv.imaging.sequence import ImagingOptions, SpeckleScene
+from liverinv.imaging.tracking import NodalTracker, TrackOptions
+from liverinv.imaging.weights import VoxelWeights
+
+SPACING = (0.5e-3, 0.5e-3, 0.3e-3)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """A 40 x 40 x 64 voxel volume inside a 24 mm tissue cube (3 x 3 x 3 cubes of 6 tet10):
+    the nodes in view have whole neighbourhoods; warped speckle."""
+    P, C = box_tet10([-12e-3, -12e-3, -3e-3], [12e-3, 12e-3, 21e-3], 3)
+    grid = ImageGrid((40, 40, 64), SPACING, (-9.75e-3, -9.75e-3, -0.9e-3))
+    vw = VoxelWeights.build(P, C, grid)
+    sc = SpeckleScene(vw, ImagingOptions(mode="warp", seed=3))
+    return P, C, grid, vw, sc
+
+
+def _score(v, true, c, th=0.1):
+    m = c.min(1) > th
+    e = np.linalg.norm(v - true, axis=1)[m]
+    return np.sqrt(np.mean(e ** 2)), m.sum()
+
+
+def test_weights_partition_of_unity_and_linear_exact(scene):
+    P, C, grid, vw, _ = scene
+    assert np.allclose(np.asarray(vw.Wi.sum(0)).ravel(), 1.0)
+    assert vw.W.min() >= 0.0
+    f = P @ np.array([1.0, -2.0, 3.0])
+    x = grid.centres(vw.voxels)
+    assert np.allclose(vw.interpolate(f), x @ np.array([1.0, -2.0, 3.0]), atol=1e-12)
+
+
+def test_rigid_subvoxel_translation(scene):
+    P, C, grid, vw, sc = scene
+    shift_vox = np.array([0.23, -0.11, 0.17])
+    u1 = np.tile(grid.vec_to_m(shift_vox), (len(P), 1))
+    f0, f1 = sc.frame(0 * u1), sc.frame(u1)
+    # the Appendix's translation model (exact for rigid motion), then the default options
+    for opts, tol in [(TrackOptions(max_iterations=8, tol_vox=1e-4, interpolated_iterations=0), 0.005),
+                      (TrackOptions(), 0.01)]:
+        tr = NodalTracker(vw, P, opts)
+        tr.start(f0)
+        v, c = tr.step(f1)
+        rms, n = _score(v, shift_vox, c)
+        assert n >= 10
+        assert rms < tol, (rms, opts)
+    assert c.max() == pytest.approx(1.0) and c.min() >= 0.0
+
+
+def test_smooth_field_sequence(scene):
+    """A smooth field (translation + rotation + compression, up to ~0.3 voxel/frame)
+    tracked over 4 frames, following the material point. On this small volume many
+    confident nodes have windows cut by the volume faces; measured 0.006-0.012 voxel RMS
+    per frame (the 0.005 target is met on the paper's volume: benchmarks/bench_tracking.py)."""
+    P, C, grid, vw, sc = scene
+    Xc = P - P.mean(0)
+    L = np.array([[0.0, 2e-3, 0.0], [-2e-3, 0.0, 0.0], [0.0, 0.0, -3e-3]])   # per frame
+    t = grid.vec_to_m([0.05, -0.03, -0.2])
+    U = [np.zeros_like(P)]
+    for k in range(4):
+        U.append(U[-1] + (Xc + U[-1]) @ L.T + t)
+    frames = [sc.frame(u) for u in U]
+    tr = NodalTracker(vw, P, TrackOptions(max_iterations=4, tol_vox=1e-4))
+    tr.start(frames[0])
+    errs = []
+    for k in range(1, len(frames)):
+        v, c = tr.step(frames[k])
+        true = grid.vec_to_vox(U[k] - U[k - 1])
+        assert 0.2 < np.abs(true).max() < 0.35
+        errs.append(_score(v, true, c)[0])
+    assert max(errs) < 0.015 and np.mean(errs) < 0.01, errs
+
+
+def test_nodes_outside_view_have_zero_confidence(scene):
+    P, C, grid, vw, sc = scene
+    P2 = P.copy()
+    P2[:, 2] += 20e-3          # most of the cube above the volume
+    vw2 = VoxelWeights.build(P2, C, grid)
+    tr = NodalTracker(vw2, P2)
+    f = sc.frame(np.zeros_like(P))
+    tr.start(f)
+    v, c = tr.step(f)
+    outside = ~grid.inside(P2)
+    assert outside.any()
+    assert np.all(c[outside] == 0.0)
