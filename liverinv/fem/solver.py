@@ -48,7 +48,7 @@ class NewtonOptions:
     refresh_after: int = 6
     bfgs_memory: int = 10
     keep_pairs: bool = True   # carry BFGS pairs across steps until the next refactorization
-    extrapolate: bool = True  # predictor from the previous increment
+    extrapolate: bool = True  # predictor: extrapolate the last converged solutions in time
     solver: str | None = None  # "pardiso" or "superlu" (default: pardiso when installed)
     keep_factorization: bool = False  # History.linear_solver keeps the last factorization
 
@@ -191,6 +191,19 @@ def _step(eng, q, dt, state, control, target):
     raise _StepFailure(f"no convergence in {opts.max_iter} iterations (|r| = {rnorm:.3e})")
 
 
+def _extrapolate(past, t):
+    """Lagrange extrapolation in time of the last two or three converged solutions."""
+    ts = [p[0] for p in past]
+    guess = np.zeros_like(past[-1][1])
+    for j, (tj, qj) in enumerate(past):
+        w = 1.0
+        for m, tm in enumerate(ts):
+            if m != j:
+                w *= (t - tm) / (tj - tm)
+        guess += w * qj
+    return guess
+
+
 def solve_history(model: Indentation, times, values, control="displacement",
                   options: NewtonOptions | None = None, record=None) -> History:
     """Run the model through a load history.
@@ -223,7 +236,7 @@ def solve_history(model: Indentation, times, values, control="displacement",
     t_start = _time.perf_counter()
     state = model.new_state()
     q = np.zeros(model.n_red)
-    q_prev = v_prev = None
+    past = [(times[0], q)]  # last converged (time, solution) pairs for the predictor
     u = np.zeros((n, model.space.mesh.n_nodes, 3))
     depth, force = np.zeros(n), np.zeros(n)
     iters, cuts = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
@@ -234,8 +247,8 @@ def solve_history(model: Indentation, times, values, control="displacement",
             ta, va, tb, vb, level = pending.pop()
             dt = tb - ta
             guesses = [q]
-            if opts.extrapolate and q_prev is not None and va != v_prev:
-                guesses.insert(0, q + (q - q_prev) * ((vb - va) / (va - v_prev)))
+            if opts.extrapolate and len(past) >= 2:
+                guesses.insert(0, _extrapolate(past, tb))
             err = None
             for guess in guesses:
                 try:
@@ -244,6 +257,7 @@ def solve_history(model: Indentation, times, values, control="displacement",
                     break
                 except _StepFailure as e:
                     err = e
+                    eng.pairs, eng.has_factor = [], False  # secant data of a failed try is unsafe
             if err is not None:
                 if level >= opts.max_cuts:
                     raise ConvergenceError(f"step to t = {tb:.6g} s failed after {level} cuts: {err}")
@@ -254,7 +268,8 @@ def solve_history(model: Indentation, times, values, control="displacement",
                 continue
             iters[k] += it
             state = model.commit(state, ev, dt)
-            q_prev, v_prev, q = q, va, q_new
+            q = q_new
+            past = (past + [(tb, q)])[-3:]
             last = ev
         u[k] = model.displacement(q)
         depth[k], force[k] = q[p], last.r[p]
