@@ -27,8 +27,10 @@ BENCH = Path(__file__).resolve().parents[1].parent / "shared" / "benchmark"
 CASES = [  # name, params, quadrature order (2: 4 points, 5: 14 points)
     ("elastic benchmark", dict(C1=200.0, C2=5000.0, D1=1.5e-3), 2),
     ("elastic benchmark 14-pt", dict(C1=200.0, C2=5000.0, D1=1.5e-3), 5),
-    ("Table 2 scale", dict(C1=24.0, C2=2040.0, D1=2.25e-4), 2),
-    ("liver surrogate", dict(C1=79.2, C2=257.0, D1=4.38e-4), 2),
+    # softer laws: with the 4-point rule both codes lose a rim element near 8 mm (felupe
+    # stops at 8.2 / 8.5 mm, liverinv at 8.0 mm); the 14-point rule runs them to 9.2 mm
+    ("Table 2 scale 14-pt", dict(C1=24.0, C2=2040.0, D1=2.25e-4), 5),
+    ("liver surrogate 14-pt", dict(C1=79.2, C2=257.0, D1=4.38e-4), 5),
     ("neo-Hookean 14-pt", dict(C1=200.0, C2=0.0, D1=1.5e-3), 5),
 ]
 QUAD = {2: "tet10-4pt", 5: "tet10-14pt"}
