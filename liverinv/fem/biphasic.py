@@ -243,20 +243,26 @@ class Biphasic:
         Ke = np.empty((ne, 34, 34))
         Ke[:, :30, :30] = element_stiffness(sp.dNdX, sp.dV, F, S, t, 1.0, 1.0)
         Finv = Ci @ np.swapaxes(F, -1, -2)
-        gN = sp.dNdX @ Finv                                   # (ne, nq, 10, 3) spatial
+        nq = sp.nq
+        gN = (sp.dNdX @ Finv).reshape(ne, nq, 30)            # spatial gradients, (a, i) flat
         gNp = self.dNpdX @ Finv                               # (ne, nq, 4, 3)
-        gp = np.einsum("eqj,eqjk->eqk", Gp, Finv)             # (ne, nq, 3)
-        Kup = -s * np.einsum("eqai,qb,eq->eaib", gN, self.Np, J * sp.dV, optimize=True).reshape(ne, 30, 4)
+        gp = (Gp[..., None, :] @ Finv)[..., 0, :]             # (ne, nq, 3)
+        mT = lambda A: np.swapaxes(A, -1, -2)
+        Kup = -s * (mT(gN) @ ((J * sp.dV)[..., None] * self.Np))            # (ne, 30, 4)
         Ke[:, :30, 30:] = Kup
-        c = -s * kdt                                          # s R_p permeation: -s dt kappa J dV
-        gp_gNp = np.einsum("eqk,eqbk->eqb", gp, gNp)
-        gN_gNp = np.einsum("eqak,eqbk->eqab", gN, gNp)
-        gN_gp = np.einsum("eqak,eqk->eqa", gN, gp)
-        Kperm = (np.einsum("eq,eqak,eqb->ebak", c, gN, gp_gNp, optimize=True)
-                 - np.einsum("eq,eqk,eqab->ebak", c, gp, gN_gNp, optimize=True)
-                 - np.einsum("eq,eqbk,eqa->ebak", c, gNp, gN_gp, optimize=True))
-        Ke[:, 30:, :30] = np.swapaxes(Kup, 1, 2) + Kperm.reshape(ne, 4, 30)
-        Ke[:, 30:, 30:] = s * np.einsum("eq,eqbk,eqck->ebc", c, gNp, gNp, optimize=True)
+        c = (-s * kdt)[..., None]                             # s R_p permeation: -s dt kappa J dV
+        gN3 = gN.reshape(ne, nq, 10, 3)
+        gp_gNp = (gNp @ gp[..., None])[..., 0]                # (ne, nq, 4)
+        gN_gp = (gN3 @ gp[..., None])[..., 0]                 # (ne, nq, 10)
+        gN_gNp = gN3 @ mT(gNp)                                # (ne, nq, 10, 4)
+        T1 = mT(c * gp_gNp) @ gN                              # [b, (a k)]
+        T2 = mT((c * gN_gNp.reshape(ne, nq, 40))) @ gp        # [(a b), k]
+        T3 = mT((c * gNp.reshape(ne, nq, 12))) @ gN_gp        # [(b k), a]
+        Kperm = (T1 - T2.reshape(ne, 10, 4, 3).transpose(0, 2, 1, 3).reshape(ne, 4, 30)
+                 - T3.reshape(ne, 4, 3, 10).transpose(0, 1, 3, 2).reshape(ne, 4, 30))
+        Ke[:, 30:, :30] = mT(Kup) + Kperm
+        G = gNp.transpose(0, 2, 1, 3).reshape(ne, 4, nq * 3)
+        Ke[:, 30:, 30:] = s * ((G * np.repeat(c[..., 0], 3, axis=1)[:, None]) @ mT(G))
         return Ke
 
     def commit(self, state: BiphasicState, ev: BiphasicEvaluation, dt) -> BiphasicState:
