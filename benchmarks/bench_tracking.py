@@ -88,11 +88,10 @@ def main():
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/liverinv_bench"))
     ap.add_argument("--truth", type=Path, default=None)
     ap.add_argument("--stride", type=int, nargs=3, default=(2, 2, 1))
-    ap.add_argument("--iterations", type=int, default=2)
+    ap.add_argument("--iterations", type=int, default=1)
     ap.add_argument("--reuse", action="store_true", help="reuse bundles already in --workdir")
     ap.add_argument("--render-only", action="store_true", help="only write the bundles")
     ap.add_argument("--window", default="subtet", choices=["subtet", "element"])
-    ap.add_argument("--bias-correction", type=int, default=0)
     ap.add_argument("--interpolated-iterations", type=int, default=2)
     args = ap.parse_args()
     args.workdir.mkdir(parents=True, exist_ok=True)
@@ -114,7 +113,7 @@ def main():
             print(f"[{case}] rendered {len(times)} volumes in {t_make:.0f} s", flush=True)
         if args.render_only:
             continue
-        opts = TrackOptions(max_iterations=args.iterations, bias_correction=args.bias_correction,
+        opts = TrackOptions(max_iterations=args.iterations,
                             interpolated_iterations=args.interpolated_iterations)
         with open_bundle(path) as b:
             flow = track_bundle(b, P, C, opts, stride=tuple(args.stride), window=args.window)

@@ -16,12 +16,10 @@ def register(subparsers):
     p.add_argument("bundle", type=Path, help="measurement bundle (.h5)")
     p.add_argument("--mesh", type=Path, required=True, help="tracking mesh (gmsh tet10)")
     p.add_argument("--out", type=Path, required=True, help="flow file to write (.nc)")
-    p.add_argument("--iterations", type=int, default=2,
-                   help="max warp-and-re-solve iterations per frame pair (2)")
+    p.add_argument("--iterations", type=int, default=1,
+                   help="iterations of the Appendix's per-node translation solve (1)")
     p.add_argument("--interpolated-iterations", type=int, default=2,
                    help="then iterations with the interpolated motion as the model (2)")
-    p.add_argument("--bias-correction", type=int, default=0,
-                   help="Neumann terms of the window-average bias correction (0 = off)")
     p.add_argument("--window", choices=["subtet", "element"], default="subtet",
                    help="node neighbourhood weights: sub-tet hats (default) or, for corner "
                         "nodes, the linear shape function of every element around it")
@@ -67,12 +65,10 @@ def run(args) -> int:
     from ..imaging.tracking import TrackOptions
 
     points, cells = read_tracking_mesh(args.mesh)
-    if (args.iterations < 1 or min(args.stride) < 1 or args.bias_correction < 0
-            or args.interpolated_iterations < 0):
-        raise UserError("--iterations and --stride must be >= 1, --bias-correction and "
-                        "--interpolated-iterations >= 0")
+    if args.iterations < 1 or min(args.stride) < 1 or args.interpolated_iterations < 0:
+        raise UserError("--iterations and --stride must be >= 1, --interpolated-iterations >= 0")
     opts = TrackOptions(max_iterations=args.iterations, tol_vox=args.tol_vox,
-                        confidence=args.confidence, bias_correction=args.bias_correction,
+                        confidence=args.confidence,
                         interpolated_iterations=args.interpolated_iterations)
     with open_bundle(args.bundle) as b:
         if b.n_frames < 2:

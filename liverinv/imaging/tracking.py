@@ -36,10 +36,6 @@ problem of all nodes); its fixed point has no window-average bias for motion the
 represent. Nodes below `interpolated_min_confidence` keep their stage-1 values so that
 poorly determined nodes cannot disturb their neighbours.
 
-Optional window-bias correction (`bias_correction` > 0): the translation estimate is the
-window average of the motion, ``v_local ~ B v``; Neumann terms of B^-1 reduce the bias of
-strain gradients and one-sided windows at surfaces (at some cost in noise).
-
 Confidence (A.4): ``c_n,j = sum_i N_n,i |dI_i/dj|`` over the voxels in view, normalized by the
 largest nodal value of the frame pair so c lies in [0, 1]. Nodes whose current position is
 outside the volume, or with less than `min_coverage` of their weight inside it, get c = 0.
@@ -68,14 +64,13 @@ _PAIRS = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
 class TrackOptions:
     """Options of the nodal Lucas-Kanade tracker (voxel units where named so)."""
 
-    max_iterations: int = 2
+    max_iterations: int = 1
     tol_vox: float = 5e-4
     warm_start: bool = True
     min_coverage: float = 0.5
     confidence: str = "sum"
     regularization: float = 1e-4
     presmooth_vox: float = 0.0
-    bias_correction: int = 0
     interpolated_iterations: int = 2
     interpolated_min_confidence: float = 0.05
 
@@ -131,6 +126,10 @@ class NodalTracker:
         grads = np.gradient(vol)
         return coef, grads
 
+    def _sample_next(self, coef, pos):
+        inside = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
+        return ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror"), inside
+
     def _sample(self, coef, grads, pos):
         valid = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
         J = ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror")
@@ -149,7 +148,6 @@ class NodalTracker:
         coef, grads = self._prepare(volume)
         v = self.v.copy() if opt.warm_start else np.zeros((self.n, 3))
         W = self.vw.W
-        rows, cols, w = self._pairs
         base = self.Xa + self.vw.interpolate(self.U)          # voxels at frame k
         ok0 = self.valid
         g = self.G * ok0[:, None]
@@ -166,9 +164,6 @@ class NodalTracker:
         node_pos = self.node_vox + self.U
         in_view = np.all((node_pos >= 0) & (node_pos <= self.shape - 1), axis=1)
         live = (cover >= opt.min_coverage) & in_view
-        gp = g[cols] * w[:, None]                             # weighted gradient per pair
-        J0p = self.J[cols]
-        Gp = self.G[cols]
         # confidence, Eq. A.4 (frame-k gradients over the voxels in view)
         c = W @ np.abs(g)
         if opt.confidence == "mean":
@@ -177,65 +172,50 @@ class NodalTracker:
         cmax = c.max()
         c = c / cmax if cmax > 0 else c
         # Stage 1, the Appendix: per-node translation (A.2-A.3), iterated with warping.
+        # Frame k+1 is sampled once per voxel at the motion V interpolated from the nodes;
+        # each node's rows are moved to its own translation by a first-order correction
+        # with the frame-k gradient, I(p + v_n) ~ I(p + V) + G . (v_n - V), so
+        # b_n = sum_i N g (J1 - J0 - G.V) + (sum_i N g G^T) v_n: sparse products only.
+        J0, G = self.J, self.G
         for it in range(1, opt.max_iterations + 1):
-            # Frame k+1 is sampled once per voxel at the motion interpolated from the nodes,
-            # then moved to each node's own translation by a first-order correction with the
-            # frame-k gradient: I(p + v_n) ~ I(p + v~) + g . (v_n - v~).
             v_at = v
             vt = self.vw.interpolate(v)
-            pos = base + vt
-            inside = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
-            J1 = ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror")
-            dI = (J1[cols] - J0p + np.einsum("pj,pj->p", Gp, v[rows] - vt[cols])) * inside[cols]
-            b = np.stack([np.bincount(rows, gp[:, j] * dI, minlength=self.n) for j in range(3)], 1)
+            J1, inside = self._sample_next(coef, base + vt)
+            m = (inside & ok0).astype(float)
+            r = m * (J1 - J0 - np.einsum("ij,ij->i", G, vt))
+            M = W @ np.column_stack([m * g[:, a_] * G[:, b_] for a_, b_ in _PAIRS])
+            M = M[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+            b = W @ (g * r[:, None]) + np.einsum("nij,nj->ni", M, v)
             delta = -np.einsum("nij,nj->ni", Ainv, b)
             v = v + delta
             if (np.abs(delta[live]).max() if live.any() else 0.0) < opt.tol_vox:
                 break
         self.v_local = v.copy()
         self.iterations = it
-        # Stage 2 (optional): the interpolated motion as the model. Each strong node's
-        # window is compared at the interpolated field V(p) itself (no translation
-        # correction), and the correction solved with the node's own system (block Jacobi
-        # on the joint least-squares problem of all nodes): the fixed point has no
-        # window-average bias for motion the mesh can represent. Weak nodes keep their
-        # stage-1 values, so they cannot disturb their neighbours.
+        # Stage 2: the interpolated motion as the model. Each strong node's window is
+        # compared at the interpolated field V(p) itself, and the correction solved with the
+        # node's own system (block Jacobi on the joint least-squares problem of all nodes):
+        # the fixed point has no window-average bias for motion the mesh can represent.
+        # Weak nodes keep their stage-1 values (nodes without data take their neighbours'),
+        # so they cannot disturb their neighbours.
         strong = live & (c.min(1) >= opt.interpolated_min_confidence)
         if opt.interpolated_iterations > 0:
             v = self._fill(v, live)
         for _ in range(opt.interpolated_iterations):
             v_at = v
-            vt = self.vw.interpolate(v)
-            pos = base + vt
-            inside = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
-            J1 = ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror")
+            J1, inside = self._sample_next(coef, base + self.vw.interpolate(v))
             self.iterations += 1
-            dI = (J1[cols] - J0p) * inside[cols]
-            b = np.stack([np.bincount(rows, gp[:, j] * dI, minlength=self.n) for j in range(3)], 1)
+            b = W @ (g * ((J1 - J0) * inside)[:, None])
             delta = -np.einsum("nij,nj->ni", Ainv, b)
             delta[~strong] = 0.0
             v = v + delta
             if (np.abs(delta).max() if strong.any() else 0.0) < opt.tol_vox:
                 break
-        # Stage 2 (optional): window-bias correction. The translation estimate is the window
-        # average of the motion field, v_local ~ B v with B v = A_n^-1 sum_i N_n,i g g^T (Ni v)_i
-        # (Ni: interpolation). Neumann terms of B^-1 remove the bias of strain gradients and
-        # one-sided windows at surfaces: v = v_local + (I - B) v_local + (I - B)^2 v_local ...
-        if opt.bias_correction > 0:
-            term = v.copy()
-            gg = np.empty((len(g), 3, 3))
-            for a_, b_ in _PAIRS:
-                gg[:, a_, b_] = gg[:, b_, a_] = g[:, a_] * g[:, b_]
-            for _ in range(opt.bias_correction):
-                vi = self.vw.interpolate(term)                      # (m, 3)
-                Bt = np.einsum("nij,nj->ni", Ainv, W @ np.einsum("mij,mj->mi", gg, vi))
-                term = term - Bt
-                term[~live] = 0.0
-                v = v + term
         if opt.interpolated_iterations == 0:
             v[cover <= 0] = 0.0
         # frame k+1 where the material now is (where it was last sampled): next pair's start
         self.U = self.U + v_at
+        pos = base + self.vw.interpolate(v_at)
         self.J, self.valid = J1, inside
         self.G = np.stack([ndimage.map_coordinates(gr, pos.T, order=1, mode="nearest")
                            for gr in grads], 1)
@@ -261,10 +241,3 @@ class NodalTracker:
             v[new] = (A @ (v * have[:, None]))[new] / cnt[new, None]
             have[new] = 1.0
         return v
-
-    @property
-    def _pairs(self):
-        if not hasattr(self, "_pairs_cache"):
-            Wc = self.vw.W.tocoo()
-            self._pairs_cache = (Wc.row.astype(np.int64), Wc.col.astype(np.int64), Wc.data)
-        return self._pairs_cache
