@@ -91,6 +91,7 @@ def main():
     ap.add_argument("--iterations", type=int, default=1)
     ap.add_argument("--reuse", action="store_true", help="reuse bundles already in --workdir")
     ap.add_argument("--render-only", action="store_true", help="only write the bundles")
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "bench_tracking.json")
     ap.add_argument("--window", default="subtet", choices=["subtet", "element"])
     ap.add_argument("--interpolated-iterations", type=int, default=2)
     args = ap.parse_args()
@@ -158,7 +159,7 @@ def main():
             print(f"   c>{th:<4}: nodal LK rms {a['rms']:.4f} p95 {a['p95']:.4f} ({a['n'] / (len(times) - 1):.0f} nodes/pair)"
                   f" | same {len(pairs)} pairs: LK rms {s_['rms']:.4f} p95 {s_['p95']:.4f}"
                   f" vs ilk rms {i['rms']:.4f} p95 {i['p95']:.4f}", flush=True)
-    out = ROOT / "results" / "bench_tracking.json"
+    out = args.out
     out.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()},
                                "results": results}, indent=1))
     print(f"wrote {out}")

@@ -59,7 +59,7 @@ def flow_picture(bundle, flow, cells, out, pair=None, slab_m=1.5e-3, min_confide
                                      linewidths=0.5))
     near = (np.abs(x_now[:, 1] - y0) < slab_m) & (c[pair] > min_confidence)
     vv = u[pair][near]
-    scale = 3.0 / max(np.abs(vv[:, [0, 2]]).max(), 1e-12) if near.any() else 1.0
+    scale = 3e-3 / max(np.abs(vv[:, [0, 2]]).max(), 1e-12) if near.any() else 1.0   # 3 mm arrows
     q = ax.quiver(x_now[near, 0] * 1e3, x_now[near, 2] * 1e3, vv[:, 0] * scale * 1e3,
                   vv[:, 2] * scale * 1e3, c[pair][near], cmap="viridis", angles="xy",
                   scale_units="xy", scale=1.0, width=0.004, clim=(0, 1))
