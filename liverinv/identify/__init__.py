@@ -1,0 +1,1 @@
+"""Identification: the velocity-based objective (seed paper Eqs. 3-5) and the optimizers."""

@@ -1,0 +1,141 @@
+r"""The model/experiment misfit of the seed paper (Eqs. 4-5), as a scalar and as residuals.
+
+For a law and parameters, the forward model is driven by the measured indenter force
+history (force control) on the inverse mesh. With frame pairs k (times t0_k -> t1_k) of the
+tracked motion u_OF and confidence c_OF at N nodes:
+
+    Phi_vol = 1/(N K) sum_k sum_i sum_j c_kij (v_OF,kij - v_FEM,kij)^2,   v = u / (t1 - t0)
+    Phi_ind = 1/M sum_s (ddot_exp,s - ddot_model,s)^2                    (indenter velocity)
+    Phi     = Phi_vol + Phi_ind
+
+(velocities in m/s, Phi in m^2/s^2). The model's nodal motion between frames is the
+difference of its displacement interpolated linearly in time at t1_k and t0_k. The residual
+vector r = [sqrt(c/(N K)) (v_OF - v_FEM), (ddot_exp - ddot_model)/sqrt(M)] has |r|^2 = Phi.
+"""
+
+from __future__ import annotations
+
+import logging
+import time as _time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..fem.solver import ConvergenceError, NewtonOptions, solve_history
+from ..forward import ForwardModel
+
+__all__ = ["Measurements", "Objective", "Evaluation"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Measurements:
+    """What the objective compares with: indenter samples and tracked nodal motion."""
+    t_ind: np.ndarray     # (M,) s, starts at 0
+    depth: np.ndarray     # (M,) m, measured punch depth
+    force: np.ndarray     # (M,) N, measured punch force (drives the model)
+    t0: np.ndarray        # (K,) s, start of each tracked frame pair
+    t1: np.ndarray        # (K,) s, end of each tracked frame pair
+    u_of: np.ndarray      # (K, N, 3) m, tracked motion from t0 to t1
+    c_of: np.ndarray      # (K, N, 3) confidence in [0, 1]
+
+    @classmethod
+    def from_flow(cls, flow, t_ind, depth, force):
+        """From a flow Dataset (`liverinv track`) and indenter samples."""
+        return cls(np.asarray(t_ind, float), np.asarray(depth, float), np.asarray(force, float),
+                   flow.time_start.values, flow.time_end.values, flow.u_of.values, flow.c_of.values)
+
+    @classmethod
+    def from_run(cls, run, frames=None, confidence=1.0):
+        """Noise-free synthetic measurements from a forward run Dataset (its nodes must be
+        the inverse mesh's): the exact frame-to-frame motion with uniform confidence."""
+        t = run.time.values
+        u = run.u.values
+        idx = np.arange(len(t)) if frames is None else np.asarray(frames)
+        u_of = u[idx[1:]] - u[idx[:-1]]
+        return cls(t, run.indenter_depth.values, run.indenter_force.values, t[idx[:-1]], t[idx[1:]],
+                   u_of, np.full(u_of.shape, float(confidence)))
+
+
+@dataclass
+class Evaluation:
+    params: dict
+    ok: bool
+    phi: float
+    phi_vol: float
+    phi_ind: float
+    rms_depth: float = np.nan      # m, RMS indenter displacement error
+    rms_axial: float = np.nan      # m, RMS axial nodal displacement error (confident nodes)
+    wall_s: float = 0.0
+    message: str = ""
+    residual: np.ndarray | None = None
+    v_fem: np.ndarray | None = None   # (K, N, 3) model nodal velocities
+    iterations: int = 0
+
+
+class Objective:
+    """Phi(params) of one law on one data set.
+
+    Parameters
+    ----------
+    forward : ForwardModel on the inverse mesh
+    law : law name
+    data : Measurements
+    fixed : parameters held fixed (not identified), merged into every evaluation
+    options : NewtonOptions of the forward solves
+    confidence_floor : nodes with c_z below it do not count in the RMS displacement figure
+    """
+
+    def __init__(self, forward: ForwardModel, law: str, data: Measurements, fixed=None,
+                 options: NewtonOptions | None = None, confidence_floor=0.1):
+        self.forward, self.law, self.data = forward, law, data
+        self.fixed = dict(fixed or {})
+        self.options = options or NewtonOptions()
+        self.confidence_floor = confidence_floor
+        n_nodes = forward.mesh.n_nodes
+        if data.u_of.shape[1] != n_nodes:
+            raise ValueError(f"tracked motion has {data.u_of.shape[1]} nodes, the inverse mesh {n_nodes}")
+        self.K, self.N = data.u_of.shape[:2]
+        dt_f = data.t1 - data.t0
+        if np.any(dt_f <= 0):
+            raise ValueError("frame pairs need t1 > t0")
+        self.v_of = data.u_of / dt_f[:, None, None]
+        self._w_vol = np.sqrt(data.c_of / (self.N * self.K))
+        self.ddot_exp = np.diff(data.depth) / np.diff(data.t_ind)
+        self.M = len(self.ddot_exp)
+        self.n_residuals = self.v_of.size + self.M
+
+    def model_motion(self, t, u):
+        """Frame-pair nodal velocities (K, N, 3) of a model history u(t)."""
+        def at(tq):
+            k = np.clip(np.searchsorted(t, tq) - 1, 0, len(t) - 2)
+            w = ((tq - t[k]) / (t[k + 1] - t[k]))[:, None, None]
+            return (1 - w) * u[k] + w * u[k + 1]
+        d = self.data
+        return (at(d.t1) - at(d.t0)) / (d.t1 - d.t0)[:, None, None], at
+
+    def __call__(self, params: dict) -> Evaluation:
+        t_start = _time.perf_counter()
+        full = {**params, **self.fixed}
+        d = self.data
+        try:
+            model = self.forward.model(self.law, full)
+            h = solve_history(model, d.t_ind, d.force, "force", self.options)
+        except (ConvergenceError, FloatingPointError, ValueError) as e:
+            return Evaluation(dict(params), False, np.nan, np.nan, np.nan,
+                              wall_s=_time.perf_counter() - t_start, message=str(e))
+        v_fem, at = self.model_motion(d.t_ind, h.u)
+        r_vol = (self._w_vol * (d.u_of / (d.t1 - d.t0)[:, None, None] - v_fem)).ravel()
+        ddot = np.diff(h.depth) / np.diff(d.t_ind)
+        r_ind = (self.ddot_exp - ddot) / np.sqrt(self.M)
+        phi_vol, phi_ind = float(r_vol @ r_vol), float(r_ind @ r_ind)
+        # intuitive figures: displacement errors (accumulated tracked motion for the field)
+        rms_depth = float(np.sqrt(np.mean((d.depth - h.depth) ** 2)))
+        U_of = np.cumsum(d.u_of[..., 2], axis=0)
+        U_fem = at(d.t1)[..., 2] - at(d.t0[:1])[..., 2]
+        conf = d.c_of[..., 2] >= self.confidence_floor
+        rms_axial = float(np.sqrt(np.mean((U_of - U_fem)[conf] ** 2))) if conf.any() else np.nan
+        return Evaluation(dict(params), True, phi_vol + phi_ind, phi_vol, phi_ind, rms_depth, rms_axial,
+                          _time.perf_counter() - t_start, "", np.concatenate([r_vol, r_ind]), v_fem,
+                          int(h.iterations.sum()))

@@ -1,0 +1,168 @@
+"""Parameter identification: bounded Nelder-Mead (the seed paper's downhill simplex) and
+bounded least squares, in normalized parameters, with every forward solve recorded and a
+checkpoint that makes an interrupted fit resume with the same result.
+
+Normalization: x = log10(p) for moduli, compliances, times and permeability; x = p for
+relaxation fractions (bounded in [0, 0.999]). Bounds are the law's parameter bounds.
+
+Checkpoint: a folder with `evaluations.jsonl` (one line per forward solve) and
+`residual_<n>.npy`. A resumed fit replays the deterministic optimizer from the same start;
+solves already in the checkpoint are read back instead of recomputed, so the path and the
+result are those of an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time as _time
+from pathlib import Path
+
+import numpy as np
+from scipy import optimize
+
+from ..laws import PARAMS, get_law
+from .objective import Objective
+
+__all__ = ["Fit", "FAILED_PHI"]
+
+log = logging.getLogger(__name__)
+
+FAILED_PHI = 1e3  # m^2/s^2: penalty of a failed forward solve (far above any real misfit)
+
+
+class Fit:
+    """Identify the free parameters `names` of `objective.law` from `start`."""
+
+    def __init__(self, objective: Objective, start: dict, names=None, checkpoint=None,
+                 progress=None):
+        self.obj = objective
+        law = get_law(objective.law)
+        self.names = list(names or [n for n in law.free if n not in objective.fixed])
+        missing = [n for n in self.names if n not in start]
+        if missing:
+            raise ValueError(f"start values missing for {missing}")
+        self.start = {n: float(start[n]) for n in self.names}
+        law.resolve({**self.start, **{k: v for k, v in objective.fixed.items() if k in law.free}})
+        self.log_scale = np.array([PARAMS[n].scale == "log" for n in self.names])
+        lo = np.array([PARAMS[n].lower for n in self.names], float)
+        hi = np.array([PARAMS[n].upper for n in self.names], float)
+        lo = np.where(self.log_scale & (lo <= 0), np.maximum(1e-12, 1e-6 * np.array(list(self.start.values()))), lo)
+        self.lo, self.hi = self.to_x(lo), self.to_x(hi)
+        self.history: list[dict] = []
+        self.progress = progress
+        self.ckpt = Path(checkpoint) if checkpoint else None
+        self._cache = {}
+        if self.ckpt:
+            self.ckpt.mkdir(parents=True, exist_ok=True)
+            self._load_checkpoint()
+
+    # -- parameter maps ------------------------------------------------------------------
+    def to_x(self, p):
+        p = np.asarray(p, float)
+        return np.where(self.log_scale, np.log10(np.where(self.log_scale, p, 1.0)), p)
+
+    def to_p(self, x):
+        x = np.asarray(x, float)
+        return np.where(self.log_scale, 10.0 ** x, x)
+
+    def params_of(self, x) -> dict:
+        return dict(zip(self.names, map(float, self.to_p(x))))
+
+    # -- evaluations -----------------------------------------------------------------------
+    @staticmethod
+    def _key(x):
+        return tuple(float(v).hex() for v in np.asarray(x, float))
+
+    def _load_checkpoint(self):
+        f = self.ckpt / "evaluations.jsonl"
+        if not f.exists():
+            return
+        for line in f.read_text().splitlines():
+            rec = json.loads(line)
+            res = self.ckpt / f"residual_{rec['n']}.npy"
+            rec["residual"] = np.load(res) if res.exists() else None
+            self._cache[tuple(rec["key"])] = rec
+        log.info("checkpoint %s: %d solves to replay", self.ckpt, len(self._cache))
+
+    def evaluate(self, x, purpose="step") -> dict:
+        """One forward solve at normalized x (or its replay from the checkpoint)."""
+        x = np.clip(np.asarray(x, float), self.lo, self.hi)
+        key = self._key(x)
+        if key in self._cache:
+            rec = dict(self._cache[key])
+            rec["replayed"] = True
+        else:
+            ev = self.obj(self.params_of(x))
+            rec = dict(key=list(key), x=list(map(float, x)), params=ev.params, ok=ev.ok,
+                       phi=ev.phi if ev.ok else FAILED_PHI, phi_vol=ev.phi_vol, phi_ind=ev.phi_ind,
+                       rms_depth=ev.rms_depth, rms_axial=ev.rms_axial, wall_s=ev.wall_s,
+                       message=ev.message, purpose=purpose, n=len(self._cache), replayed=False)
+            rec["residual"] = ev.residual
+            if self.ckpt:
+                if ev.residual is not None:
+                    np.save(self.ckpt / f"residual_{rec['n']}.npy", ev.residual)
+                with open(self.ckpt / "evaluations.jsonl", "a") as f:
+                    f.write(json.dumps({k: v for k, v in rec.items() if k not in ("residual", "replayed")}) + "\n")
+            self._cache[key] = rec
+        self.history.append(rec)
+        if self.progress:
+            self.progress(rec)
+        return rec
+
+    def residual(self, x, purpose="step"):
+        rec = self.evaluate(x, purpose)
+        if rec["ok"] and rec["residual"] is not None:
+            return rec["residual"]
+        return np.full(self.obj.n_residuals, np.sqrt(FAILED_PHI / self.obj.n_residuals))
+
+    # -- optimizers -----------------------------------------------------------------------
+    def nelder_mead(self, max_evaluations=400, xatol=1e-3, fatol=1e-4, initial_step=0.1):
+        """Bounded downhill simplex (scipy, Gao-Han adaptive off) in normalized parameters;
+        the initial simplex steps `initial_step` (decades for log parameters)."""
+        x0 = self.to_x(list(self.start.values()))
+        sim = [x0]
+        for i in range(len(x0)):
+            e = x0.copy()
+            e[i] += initial_step if x0[i] + initial_step <= self.hi[i] else -initial_step
+            sim.append(e)
+
+        def f(x):
+            rec = self.evaluate(x, "nelder-mead")
+            return rec["phi"]
+
+        res = optimize.minimize(f, x0, method="Nelder-Mead", bounds=list(zip(self.lo, self.hi)),
+                                options=dict(maxfev=max_evaluations, xatol=xatol, fatol=0.0,
+                                             initial_simplex=np.array(sim)))
+        return self._result(res.x, "nelder-mead", res.message)
+
+    def least_squares(self, max_evaluations=200, fd_step=1e-3, x_scale=1.0):
+        """Bounded trust-region least squares on the residual vector, with a forward
+        finite-difference Jacobian (one solve per parameter, all recorded)."""
+        x0 = self.to_x(list(self.start.values()))
+
+        def fun(x):
+            return self.residual(x, "least-squares")
+
+        def jac(x):
+            r0 = self.residual(x, "least-squares")
+            J = np.empty((len(r0), len(x)))
+            for i in range(len(x)):
+                h = fd_step if x[i] + fd_step <= self.hi[i] else -fd_step
+                e = x.copy()
+                e[i] += h
+                J[:, i] = (self.residual(e, "fd-jacobian") - r0) / h
+            return J
+
+        res = optimize.least_squares(fun, x0, jac=jac, bounds=(self.lo, self.hi), method="trf",
+                                     x_scale=x_scale, max_nfev=max_evaluations, xtol=1e-8,
+                                     ftol=1e-10, gtol=1e-10)
+        out = self._result(res.x, "least-squares", res.message)
+        out["jacobian"] = res.jac
+        return out
+
+    def _result(self, x, method, message):
+        best = min((r for r in self.history if r["ok"]), key=lambda r: r["phi"], default=None)
+        return dict(method=method, message=str(message), x=np.asarray(x), params=self.params_of(x),
+                    best=best, n_solves=sum(1 for r in self.history if not r.get("replayed")) ,
+                    n_evaluations=len(self.history))
