@@ -1,11 +1,12 @@
 r"""The model/experiment misfit of the seed paper (Eqs. 4-5), as a scalar and as residuals.
 
 For a law and parameters, the forward model is driven by the measured indenter force
-history (force control) on the inverse mesh. With frame pairs k (times t0_k -> t1_k) of the
+history (force control, interpolated at t = 0 and the frame times) on the inverse mesh. With frame pairs k (times t0_k -> t1_k) of the
 tracked motion u_OF and confidence c_OF at N nodes:
 
     Phi_vol = 1/(N K) sum_k sum_i sum_j c_kij (v_OF,kij - v_FEM,kij)^2,   v = u / (t1 - t0)
-    Phi_ind = 1/M sum_s (ddot_exp,s - ddot_model,s)^2                    (indenter velocity)
+    Phi_ind = 1/M sum_s (ddot_exp,s - ddot_model,s)^2   (indenter velocity over the M
+                                                          intervals between driving times)
     Phi     = Phi_vol + Phi_ind
 
 (velocities in m/s, Phi in m^2/s^2). The model's nodal motion between frames is the
@@ -102,7 +103,16 @@ class Objective:
             raise ValueError("frame pairs need t1 > t0")
         self.v_of = data.u_of / dt_f[:, None, None]
         self._w_vol = np.sqrt(data.c_of / (self.N * self.K))
-        self.ddot_exp = np.diff(data.depth) / np.diff(data.t_ind)
+        # the model is driven at the frame times (and t = 0), with the measured force
+        # interpolated there; indenter velocities are compared over the same intervals
+        t = np.unique(np.concatenate([[0.0], data.t0, data.t1]))
+        if t[0] < 0 or t[-1] > data.t_ind[-1] + 1e-9 or t[0] < data.t_ind[0] - 1e-9:
+            raise ValueError("frame times must lie within the indenter record")
+        self.t_drive = t
+        self.f_drive = np.interp(t, data.t_ind, data.force)
+        self.f_drive[0] = 0.0  # the test starts unloaded (sensor offset removed)
+        self.d_drive = np.interp(t, data.t_ind, data.depth)
+        self.ddot_exp = np.diff(self.d_drive) / np.diff(t)
         self.M = len(self.ddot_exp)
         self.n_residuals = self.v_of.size + self.M
 
@@ -121,17 +131,17 @@ class Objective:
         d = self.data
         try:
             model = self.forward.model(self.law, full)
-            h = solve_history(model, d.t_ind, d.force, "force", self.options)
+            h = solve_history(model, self.t_drive, self.f_drive, "force", self.options)
         except (ConvergenceError, FloatingPointError, ValueError) as e:
             return Evaluation(dict(params), False, np.nan, np.nan, np.nan,
                               wall_s=_time.perf_counter() - t_start, message=str(e))
-        v_fem, at = self.model_motion(d.t_ind, h.u)
-        r_vol = (self._w_vol * (d.u_of / (d.t1 - d.t0)[:, None, None] - v_fem)).ravel()
-        ddot = np.diff(h.depth) / np.diff(d.t_ind)
+        v_fem, at = self.model_motion(self.t_drive, h.u)
+        r_vol = (self._w_vol * (self.v_of - v_fem)).ravel()
+        ddot = np.diff(h.depth) / np.diff(self.t_drive)
         r_ind = (self.ddot_exp - ddot) / np.sqrt(self.M)
         phi_vol, phi_ind = float(r_vol @ r_vol), float(r_ind @ r_ind)
         # intuitive figures: displacement errors (accumulated tracked motion for the field)
-        rms_depth = float(np.sqrt(np.mean((d.depth - h.depth) ** 2)))
+        rms_depth = float(np.sqrt(np.mean((self.d_drive - h.depth) ** 2)))
         U_of = np.cumsum(d.u_of[..., 2], axis=0)
         U_fem = at(d.t1)[..., 2] - at(d.t0[:1])[..., 2]
         conf = d.c_of[..., 2] >= self.confidence_floor
