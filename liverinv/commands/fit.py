@@ -1,0 +1,93 @@
+"""`liverinv fit`: identify a law's parameters from a measurement bundle and its tracked flow."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..cli import UserError
+
+
+def register(sub):
+    p = sub.add_parser("fit", help="identify material parameters (Nelder-Mead or least squares)",
+                       description=__doc__)
+    p.add_argument("--bundle", required=True, help="measurement bundle (HDF5) with the indenter record")
+    p.add_argument("--flow", required=True, help="tracked nodal motion (liverinv track)")
+    p.add_argument("--mesh", required=True, help="inverse mesh (the one the flow was tracked on)")
+    p.add_argument("--law", required=True)
+    p.add_argument("--start", action="append", default=[], metavar="NAME=VALUE", help="start value (repeatable)")
+    p.add_argument("--fixed", action="append", default=[], metavar="NAME=VALUE", help="held fixed (repeatable)")
+    p.add_argument("--method", choices=["nelder-mead", "least-squares"], default="least-squares")
+    p.add_argument("--max-evaluations", type=int, default=None)
+    p.add_argument("--checkpoint", help="folder for the evaluation log; an interrupted fit resumes from it")
+    p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
+    p.add_argument("--out", required=True, help="fit file (netCDF)")
+    p.set_defaults(func=run)
+
+
+def _pairs(items, flag):
+    out = {}
+    for item in items:
+        k, sep, v = item.partition("=")
+        if not sep:
+            raise UserError(f"{flag} {item!r}: expected NAME=VALUE")
+        try:
+            out[k.strip()] = float(v)
+        except ValueError:
+            raise UserError(f"{flag} {item!r}: {v!r} is not a number") from None
+    return out
+
+
+def run(args) -> int:
+    import xarray as xr
+    from tqdm import tqdm
+
+    from ..fileio import file_sha256, write_netcdf
+    from ..forward import ForwardModel
+    from ..identify.fitfile import fit_dataset
+    from ..identify.objective import Measurements, Objective
+    from ..identify.optimize import Fit
+    from ..imaging.bundle import open_bundle
+    from ..laws import LawError, get_law
+    from ..mesh import MeshError
+
+    start, fixed = _pairs(args.start, "--start"), _pairs(args.fixed, "--fixed")
+    try:
+        law = get_law(args.law)
+        start = {**{k: v for k, v in law.defaults.items() if k in law.free and k not in fixed}, **start}
+        law.resolve({**start, **fixed})
+        for path, what in ((args.bundle, "bundle"), (args.flow, "flow")):
+            if not Path(path).is_file():
+                raise UserError(f"{path}: {what} file not found")
+        with open_bundle(args.bundle) as b:
+            ind = b.indenter
+            t_ind, depth, force = ind.time_s, ind.displacement_m, ind.force_N
+        with xr.open_dataset(args.flow, engine="h5netcdf") as flow:
+            flow = flow.load()
+        fm = ForwardModel(args.mesh, quadrature_order=args.quadrature_order)
+        obj = Objective(fm, args.law, Measurements.from_flow(flow, t_ind, depth, force), fixed=fixed)
+    except (LawError, MeshError, ValueError, KeyError, OSError) as e:
+        raise UserError(str(e)) from None
+    bar = tqdm(desc=f"fit {args.law}", unit="solve", disable=None)
+    best = [float("inf")]
+
+    def progress(rec):
+        if rec["ok"]:
+            best[0] = min(best[0], rec["phi"])
+        bar.update(1)
+        bar.set_postfix(phi=f"{best[0]:.3e}", refresh=False)
+
+    fit = Fit(obj, start, checkpoint=args.checkpoint, progress=progress)
+    if args.method == "nelder-mead":
+        result = fit.nelder_mead(max_evaluations=args.max_evaluations or 400)
+        jac = None
+    else:
+        result = fit.least_squares(max_evaluations=args.max_evaluations or 100)
+        jac = result.get("jacobian")
+    bar.close()
+    ds = fit_dataset(fit, result, jac, attrs=dict(bundle=str(args.bundle), flow=str(args.flow),
+                                                   mesh=str(args.mesh), mesh_sha256=file_sha256(args.mesh)))
+    write_netcdf(ds, args.out)
+    best_p = ", ".join(f"{k}={v:.4g}" for k, v in zip(ds.param.values, ds.best.values))
+    print(f"wrote {args.out}: {best_p}; Phi = {float(ds.phi):.3e} (vol {float(ds.phi_vol):.3e}, "
+          f"ind {float(ds.phi_ind):.3e}) after {ds.attrs['n_solves']} forward solves")
+    return 0

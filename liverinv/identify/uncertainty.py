@@ -1,0 +1,46 @@
+"""Gauss-Newton uncertainty at the optimum, and what the indenter data alone can tell.
+
+With the Jacobian J of the residual vector in normalized parameters x (log10 for log-scaled
+parameters), cov_x = s^2 (J^T J)^-1 with s^2 = |r|^2 / (m - n). A log-scaled parameter's
+relative standard deviation is ln(10) sd_x. Repeating this with only the indenter rows of
+J shows which parameters the force/displacement record alone cannot determine.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["gauss_newton"]
+
+
+def _cov(J, s2):
+    JtJ = J.T @ J
+    try:
+        cond = float(np.linalg.cond(JtJ))
+        cov = s2 * np.linalg.pinv(JtJ, rcond=1e-14)
+    except np.linalg.LinAlgError:
+        return np.full((J.shape[1], J.shape[1]), np.nan), np.inf
+    return cov, cond
+
+
+def gauss_newton(J, r, n_ind, log_scale):
+    """Covariance, correlation, condition number and relative standard deviations of the
+    parameters, from all residuals and from the last `n_ind` (indenter) residuals only."""
+    m, n = J.shape
+    s2 = float(r @ r) / max(m - n, 1)
+    cov, cond = _cov(J, s2)
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    corr = cov / np.outer(sd, sd) if np.all(sd > 0) else np.full_like(cov, np.nan)
+    J_ind = J[-n_ind:]
+    cov_ind, cond_ind = _cov(J_ind, s2)
+    sd_ind = np.sqrt(np.clip(np.diag(cov_ind), 0, None))
+    rel = np.where(log_scale, np.log(10.0) * sd, sd)
+    rel_ind = np.where(log_scale, np.log(10.0) * sd_ind, sd_ind)
+    # a parameter is determined by a data set when its relative sd is below 10 %
+    # (fractions: absolute sd below 0.1); the indenter rows alone are rank-deficient in D1
+    # when force data cannot separate bulk from shear response
+    sv = np.linalg.svd(J_ind, compute_uv=False)
+    rank_ind = int(np.sum(sv > sv[0] * 1e-6)) if sv.size else 0
+    return dict(cov_x=cov, corr=corr, cond=cond, rel_sd=rel, rel_sd_indenter_only=rel_ind,
+                cond_indenter_only=cond_ind, rank_indenter_only=rank_ind,
+                determined=rel < 0.1, determined_by_indenter=rel_ind < 0.1)
