@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..cli import UserError
+from . import parse_assignments
 
 
 def register(sub):
@@ -24,19 +25,6 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def _pairs(items, flag):
-    out = {}
-    for item in items:
-        k, sep, v = item.partition("=")
-        if not sep:
-            raise UserError(f"{flag} {item!r}: expected NAME=VALUE")
-        try:
-            out[k.strip()] = float(v)
-        except ValueError:
-            raise UserError(f"{flag} {item!r}: {v!r} is not a number") from None
-    return out
-
-
 def run(args) -> int:
     import xarray as xr
     from tqdm import tqdm
@@ -50,7 +38,7 @@ def run(args) -> int:
     from ..laws import LawError, get_law
     from ..mesh import MeshError
 
-    start, fixed = _pairs(args.start, "--start"), _pairs(args.fixed, "--fixed")
+    start, fixed = parse_assignments(args.start, "--start"), parse_assignments(args.fixed, "--fixed")
     try:
         law = get_law(args.law)
         start = {**{k: v for k, v in law.defaults.items() if k in law.free and k not in fixed}, **start}

@@ -6,6 +6,7 @@ import logging
 from pathlib import Path
 
 from ..cli import UserError
+from . import parse_assignments
 
 log = logging.getLogger(__name__)
 
@@ -49,16 +50,7 @@ def _study_from_args(args) -> tuple[dict, Path]:
         study["mesh"] = args.mesh
     if args.law:
         study["law"] = args.law
-    params = dict(study.get("params", {}))
-    for item in args.param:
-        name, sep, value = item.partition("=")
-        if not sep:
-            raise UserError(f"--param {item!r}: expected NAME=VALUE")
-        try:
-            params[name.strip()] = float(value)
-        except ValueError:
-            raise UserError(f"--param {item!r}: {value!r} is not a number") from None
-    study["params"] = params
+    study["params"] = {**study.get("params", {}), **parse_assignments(args.param, "--param")}
     loading = dict(study.get("loading", {}))
     for key in ("control", "depth", "rate", "steps", "frames", "unload", "hold"):
         v = getattr(args, key)
