@@ -45,7 +45,7 @@ def test_rigid_subvoxel_translation(scene):
     f0, f1 = sc.frame(0 * u1), sc.frame(u1)
     # the Appendix's translation model (exact for rigid motion), then the default options
     for opts, tol in [(TrackOptions(max_iterations=8, tol_vox=1e-4, interpolated_iterations=0), 0.005),
-                      (TrackOptions(), 0.015)]:
+                      (TrackOptions(interpolated_iterations=2), 0.015)]:
         tr = NodalTracker(vw, P, opts)
         tr.start(f0)
         v, c = tr.step(f1)

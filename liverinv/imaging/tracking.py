@@ -6,7 +6,9 @@ elements around the node, each row weighted by the node's shape function N_n,i (
 
     sum_i N_n,i g_i g_i^T v_n = - sum_i N_n,i g_i dI_i,
 
-with g the spatial gradient of frame k (central differences) and dI the frame difference.
+with g the spatial gradient of frame k at the tissue's position (central differences;
+`symmetric_gradient` averages it with frame k+1's at the warm-start position, which did
+not help on the benchmark) and dI the frame difference.
 All nodes are solved at once: the six gradient products are one sparse product with the
 (node x voxel) weight matrix W of `weights.VoxelWeights` (built once per mesh and grid),
 the 3 x 3 systems are inverted together.
@@ -27,14 +29,16 @@ correction, up to `max_iterations` times or until the largest correction is belo
 The first estimate is the previous pair's motion (warm start); with one iteration and no
 warm start this is exactly the paper's single-pass estimate.
 
-Stage 2, interpolated model (`interpolated_iterations`, default 2): the translation
+Stage 2, interpolated model (`interpolated_iterations`, default 0): the translation
 estimate is a texture-weighted window average of the motion, biased where the motion
 varies over the window (strain gradients, one-sided windows at surfaces, uneven texture).
 Then each confident node's window is compared at the interpolated motion V(p) itself and
 the correction solved with the node's own system (block Jacobi on the joint least-squares
 problem of all nodes); its fixed point has no window-average bias for motion the mesh can
 represent. Nodes below `interpolated_min_confidence` keep their stage-1 values so that
-poorly determined nodes cannot disturb their neighbours.
+poorly determined nodes cannot disturb their neighbours. It halves the error on noise-free
+warped data (the paper's validation) but amplifies noise and speckle decorrelation
+(moved scatterers, noisy data), hence off by default; see benchmarks/bench_tracking.py.
 
 Confidence (A.4): ``c_n,j = sum_i N_n,i |dI_i/dj|`` over the voxels in view, normalized by the
 largest nodal value of the frame pair so c lies in [0, 1]. Nodes whose current position is
@@ -64,14 +68,15 @@ _PAIRS = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
 class TrackOptions:
     """Options of the nodal Lucas-Kanade tracker (voxel units where named so)."""
 
-    max_iterations: int = 1
+    max_iterations: int = 2
     tol_vox: float = 5e-4
     warm_start: bool = True
     min_coverage: float = 0.5
     confidence: str = "sum"
     regularization: float = 1e-4
     presmooth_vox: float = 0.0
-    interpolated_iterations: int = 2
+    interpolated_iterations: int = 0
+    symmetric_gradient: bool = False
     interpolated_min_confidence: float = 0.05
 
     def __post_init__(self):
@@ -150,7 +155,15 @@ class NodalTracker:
         W = self.vw.W
         base = self.Xa + self.vw.interpolate(self.U)          # voxels at frame k
         ok0 = self.valid
-        g = self.G * ok0[:, None]
+        G = self.G
+        if opt.symmetric_gradient:
+            # average with frame k+1's gradient where the warm start puts the tissue: the
+            # noise of a frame's gradient is correlated with its (interpolated) values; the
+            # two frames' correlations cancel to first order (no errors-in-variables bias)
+            pos0 = base + self.vw.interpolate(v)
+            G = 0.5 * (G + np.stack([ndimage.map_coordinates(gr, pos0.T, order=1, mode="nearest")
+                                     for gr in grads], 1))
+        g = G * ok0[:, None]
         prod = np.empty((len(g), 6))
         for q, (a, b) in enumerate(_PAIRS):
             prod[:, q] = g[:, a] * g[:, b]
@@ -176,7 +189,7 @@ class NodalTracker:
         # each node's rows are moved to its own translation by a first-order correction
         # with the frame-k gradient, I(p + v_n) ~ I(p + V) + G . (v_n - V), so
         # b_n = sum_i N g (J1 - J0 - G.V) + (sum_i N g G^T) v_n: sparse products only.
-        J0, G = self.J, self.G
+        J0 = self.J
         for it in range(1, opt.max_iterations + 1):
             v_at = v
             vt = self.vw.interpolate(v)
