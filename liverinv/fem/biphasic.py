@@ -46,6 +46,12 @@ Verification (tests/test_biphasic.py): Terzaghi consolidation, undrained incompr
 drained elastic limits, fluid mass balance, finite-difference tangent, and the benchmark's
 FEBio 4 poroelastic reference, reproduced to 2e-6 with FEBio's 8-point tet10 rule (the
 engine's default 4-point rule gives F 0.5-0.8% lower on the coarse mesh).
+
+Quadrature: use 8 points or more. With the 4-point rule the discrete volume constraint acts
+on J at only 4 points per element and the tangent turns singular at the punch rim once the
+response is close to undrained: the coarse mesh fails near 7.3-8 mm for kappa <= 1e-8
+(Table 1 seed C1 150, C2 4000, D1 2e-4, kappa 1e-8) and the fine mesh near 9.18 mm at
+kappa 1e-7; FEBio's 8-point and the 14-point rule run all of these without a step cut.
 """
 
 from __future__ import annotations
