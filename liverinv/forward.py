@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from .fem.biphasic import DRAINED_DEFAULT, Biphasic
+from .fem.biphasic import DRAINED_DEFAULT, Biphasic, febio8_space
 from .fem.indentation import Indentation
 from .fem.solver import NewtonOptions, solve_history
 from .fem.space import Space
@@ -38,6 +38,9 @@ class ForwardModel:
         laws near the punch rim)
     drained : mesh groups with free draining (p = 0) for biphasic laws; other faces are
         impermeable
+
+    Biphasic laws integrate with at least 8 points: FEBio's 8-point rule replaces the
+    4- or 5-point rules (orders 2, 3), on which the u-p model fails near undrained states.
     """
 
     def __init__(self, mesh, punch="frictionless", support="fixed", quadrature_order=2,
@@ -48,6 +51,7 @@ class ForwardModel:
         self.punch, self.support = punch, support
         self.drained = tuple(drained)
         self.mesh_sha256 = file_sha256(self.mesh.path) if self.mesh.path else "in-memory"
+        self._space_biphasic = None
 
     def element_params(self, law_name, params, region_params=None) -> dict:
         """Full parameter set of a law; `region_params` maps a region id (gmsh physical
@@ -68,10 +72,19 @@ class ForwardModel:
 
     def model(self, law_name, params, region_params=None) -> Indentation | Biphasic:
         if get_law(law_name).biphasic:
-            return Biphasic(self.space, self.element_params(law_name, params, region_params),
+            return Biphasic(self.biphasic_space(), self.element_params(law_name, params, region_params),
                             punch=self.punch, support=self.support, drained=self.drained)
         return Indentation(self.space, self.element_params(law_name, params, region_params),
                            punch=self.punch, support=self.support)
+
+    def biphasic_space(self) -> Space:
+        """The space of biphasic laws: FEBio's 8-point rule unless the configured rule has
+        at least 8 points."""
+        if self.space.nq >= 8:
+            return self.space
+        if self._space_biphasic is None:
+            self._space_biphasic = febio8_space(self.mesh)
+        return self._space_biphasic
 
     def run(self, law_name, params, history: LoadHistory, options: NewtonOptions | None = None,
             region_params=None, attrs=None) -> xr.Dataset:
@@ -81,6 +94,7 @@ class ForwardModel:
         if record is not None:
             h.p, h.fluid_load_fraction = record.p, record.fluid_fraction(h.force)
             h.p_nodes = model.p_nodes
+        h.quadrature_points = int(model.space.nq)
         law = get_law(law_name)
         resolved = law.resolve(params)
         return self.to_dataset(h, law_name, {k: resolved[k] for k in law.free} | dict(law.fixed),
@@ -109,7 +123,7 @@ class ForwardModel:
         ds.attrs = provenance(
             law=law_name, params=params, region_params=region_params or {},
             control=history.control, punch=self.punch, support=self.support,
-            quadrature_points=int(self.space.nq),
+            quadrature_points=int(getattr(h, "quadrature_points", self.space.nq)),
             **({"drained": list(self.drained)} if getattr(h, "p", None) is not None else {}),
             mesh=str(m.path) if m.path else "in-memory", mesh_sha256=self.mesh_sha256,
             solver=dict(h.timing), **(attrs or {}))
