@@ -252,19 +252,21 @@ class Biphasic:
     def evaluate(self, q, dt, state: BiphasicState, tangent=True) -> BiphasicEvaluation:
         """Reduced residual [R_u, indenter force, s R_p] and tangent at q for a step dt."""
         sp, s = self.space, self.s
-        F = sp.deformation_gradient(self.displacement(q))
+        full = self.asm.expand(q)
+        n3 = 3 * sp.mesh.n_nodes
+        F = sp.deformation_gradient(full[:n3].reshape(-1, 3))
         S_iso, S_vol, t, J = hyperelastic_terms(F, self._C1, self._C2, self._D1, self._D2inv)
-        pe = self.pressure(q)[self.p_elem]                                 # (ne, 4)
+        pe = s * full[n3:][self.p_elem]                                    # (ne, 4)
         p = pe @ self.Np.T                                                 # (ne, nq)
-        Gp = np.einsum("eqij,ei->eqj", self.dNpdX, pe)                     # Grad p
+        Gp = (pe[:, None, None, :] @ self.dNpdX)[..., 0, :]                # Grad p (ne, nq, 3)
         Ci = t["Ci"]
         Jp = J * p
         S = S_iso + S_vol - Jp[..., None, None] * Ci
         fe_u = sp.internal_force(F @ S)
         kdt = self._kappa * dt * J * sp.dV                                 # (ne, nq)
-        CiGp = np.einsum("eqij,eqj->eqi", Ci, Gp)
-        fe_p = -s * (np.einsum("qa,eq->ea", self.Np, (J - state.J_n) * sp.dV)
-                     + np.einsum("eqaj,eqj->ea", self.dNpdX, kdt[..., None] * CiGp))
+        CiGp = (Ci @ Gp[..., None])[..., 0]
+        fe_p = -s * (((J - state.J_n) * sp.dV) @ self.Np
+                     + ((self.dNpdX @ (kdt[..., None] * CiGp)[..., None])[..., 0]).sum(axis=1))
         r = self.asm.vector(np.concatenate([fe_u, fe_p], axis=1))
         K = None
         if tangent:
