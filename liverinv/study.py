@@ -86,7 +86,8 @@ def simulate_study(study: dict, base_dir: Path = Path(".")):
     contact = study.get("contact", {})
     fm = ForwardModel(_resolve(study["mesh"], base_dir), contact.get("punch", "frictionless"),
                       contact.get("support", "fixed"),
-                      quadrature_order=study.get("solver", {}).get("quadrature_order", 2))
+                      quadrature_order=study.get("solver", {}).get("quadrature_order", 2),
+                      **({"drained": study["drainage"]["drained"]} if "drained" in study.get("drainage", {}) else {}))
     loading = study["loading"]
     hist = history_of(loading, base_dir)
     opts = options_of(study)

@@ -91,25 +91,9 @@ class BiphasicEvaluation(Evaluation):
 
 
 def febio8_space(mesh) -> Space:
-    """Tet10 space on FEBio's 8-point rule (FETet10G8; degree 3, positive weights), the rule
-    of the benchmark's FEBio poroelastic reference: a `Space` whose quadrature attributes
-    (basis, dNdX, N, dV, X_q, nq) are rebuilt on that rule."""
-    from skfem import Basis, ElementTetP2
-    a, b, c, d = 0.0158359099, 0.3280546970, 0.6791431780, 0.1069522740
-    X = np.array([[a, b, b], [b, a, b], [b, b, a], [b, b, b],
-                  [c, d, d], [d, c, d], [d, d, c], [d, d, d]]).T
-    W = np.array([0.138527967] * 4 + [0.111472033] * 4) / 6.0
-    sp = Space(mesh)
-    basis = Basis(sp.basis.mesh, ElementTetP2(), quadrature=(X, W))
-    if not np.array_equal(basis.element_dofs, sp.basis.element_dofs):
-        raise RuntimeError("scikit-fem dof numbering changed with the quadrature rule")
-    grads = np.stack([basis.basis[i][0].grad for i in range(10)], axis=0)
-    sp.basis, sp.nq = basis, X.shape[1]
-    sp.dNdX = np.ascontiguousarray(grads.transpose(2, 3, 0, 1))
-    sp.N = np.stack([np.asarray(basis.basis[i][0])[0] for i in range(10)], axis=-1)
-    sp.dV = np.ascontiguousarray(basis.dx)
-    sp.X_q = np.ascontiguousarray(np.stack([basis.mapping.F(basis.X)[j] for j in range(3)], -1))
-    return sp
+    """Tet10 space on FEBio's 8-point rule (FETet10G8), the rule of the benchmark's FEBio
+    poroelastic reference."""
+    return Space(mesh, rule="febio8")
 
 
 def pressure_shape(space: Space):

@@ -13,13 +13,29 @@ import numpy as np
 
 from ..mesh import TetMesh
 
-__all__ = ["Space"]
+__all__ = ["Space", "RULES"]
+
+# Named tetrahedron rules beyond scikit-fem's (points as barycentric (3, nq), weights (nq,)).
+# "febio8": FEBio's FETet10G8 (degree 3, positive weights), the rule of the benchmark's
+# FEBio poroelastic reference.
+_a, _b, _c, _d = 0.0158359099, 0.3280546970, 0.6791431780, 0.1069522740
+RULES = {
+    "febio8": (np.array([[_a, _b, _b], [_b, _a, _b], [_b, _b, _a], [_b, _b, _b],
+                         [_c, _d, _d], [_d, _c, _d], [_d, _d, _c], [_d, _d, _d]]).T,
+               np.array([0.138527967] * 4 + [0.111472033] * 4) / 6.0),
+}
 
 log = logging.getLogger(__name__)
 
 
 class Space:
     """Tet10 vector space on a mesh.
+
+    Parameters
+    ----------
+    mesh : TetMesh
+    intorder : degree the scikit-fem tetrahedron rule integrates exactly (2: 4 points)
+    rule : a named rule of `RULES` instead (e.g. "febio8")
 
     Attributes
     ----------
@@ -31,7 +47,7 @@ class Space:
     edofs : (ne, 30) global dof of (local node a, component i) at index 3 a + i
     """
 
-    def __init__(self, mesh: TetMesh, intorder: int = 2):
+    def __init__(self, mesh: TetMesh, intorder: int = 2, rule: str | None = None):
         from skfem import Basis, ElementTetP2, MeshTet1, MeshTet2
 
         self.mesh = mesh
@@ -47,7 +63,12 @@ class Space:
         file_of_dof = self._match_by_cells(basis1, skm1, cells, remap, p_used)
         self.skfem_dof_to_node = file_of_dof
         skm = MeshTet2(mesh.points[file_of_dof].T.copy(), t)
-        basis = Basis(skm, ElementTetP2(), intorder=intorder)
+        if rule is None:
+            basis = Basis(skm, ElementTetP2(), intorder=intorder)
+        elif rule in RULES:
+            basis = Basis(skm, ElementTetP2(), quadrature=RULES[rule])
+        else:
+            raise ValueError(f"unknown quadrature rule {rule!r}; named rules: {sorted(RULES)}")
         if not np.array_equal(basis.element_dofs, basis1.element_dofs):
             raise RuntimeError("scikit-fem dof numbering changed between linear and quadratic mesh")
         self.basis = basis
