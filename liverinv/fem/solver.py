@@ -134,14 +134,34 @@ def _lbfgs(r, pairs, solve):
     return z
 
 
+def _tangent_predictor(eng, q0, target, dt, state):
+    """Linearized response to moving the punch from q0[p] to `target` with the tangent at
+    q0 (moving only the footprint nodes can invert the rim elements in a large step)."""
+    model = eng.model
+    p = model.punch_index
+    ev = eng.evaluate(q0, dt, state, True)
+    dd = target - q0[p]
+    rhs = -np.asarray(ev.K[:, [p]].todense()).ravel() * dd
+    t0 = _time.perf_counter()
+    eng.lin.factorize(model.fix_punch(ev.K))
+    eng.t_factor += _time.perf_counter() - t0
+    eng.has_factor, eng.fresh, eng.pairs = True, False, []
+    rhs[p] = dd
+    return q0 + eng.solve(rhs)
+
+
 def _step(eng, q, dt, state, control, target):
     """Equilibrium at the end of one step from the initial guess q."""
     model, opts = eng.model, eng.opts
     p = model.punch_index
+    q0 = q.copy()
     q = q.copy()
     if control == "displacement":
         q[p] = target
     ev = eng.evaluate(q, dt, state, False)
+    if not _admissible(ev) and control == "displacement":
+        q = _tangent_predictor(eng, q0, target, dt, state)
+        ev = eng.evaluate(q, dt, state, False)
     if not _admissible(ev):
         raise _StepFailure("initial guess inverts an element")
     r = _residual(model, ev, control, target)
