@@ -3,6 +3,7 @@ and the forward simulation they describe."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import yaml
@@ -18,6 +19,20 @@ SCHEMA = Path(__file__).parent / "schemas" / "study.schema.yaml"
 
 class StudyError(ValueError):
     pass
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that also reads 1e-3 (no dot) as a float, as YAML 1.2 and people do."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                |\.[0-9_]+(?:[eE][-+][0-9]+)?
+                |[-+]?\.(?:inf|Inf|INF)
+                |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."))
 
 
 def validate_study(study: dict, source="study") -> dict:
@@ -37,7 +52,7 @@ def load_study(path) -> tuple[dict, Path]:
     """Read and validate a study YAML; returns (study, directory of the file)."""
     path = Path(path)
     try:
-        study = yaml.safe_load(path.read_text())
+        study = yaml.load(path.read_text(), Loader=_Loader)
     except FileNotFoundError:
         raise StudyError(f"{path}: study file not found") from None
     except yaml.YAMLError as e:

@@ -66,3 +66,10 @@ def test_workflow_dry_run_and_lint():
                        capture_output=True, text=True, cwd=ROOT)
     assert p.returncode == 0, p.stderr[-2000:]
     assert "simulate" in p.stdout + p.stderr
+
+
+def test_yaml_scientific_notation_without_dot_is_a_number(tmp_path):
+    p = tmp_path / "s.yaml"
+    p.write_text("mesh: m.msh\nlaw: SR\nparams: {D1: 1e-3, C1: 2E2}\nloading: {depth: 9e-3, rate: 2e-3, steps: 2}\n")
+    study, _ = load_study(p)
+    assert study["params"] == {"D1": 1e-3, "C1": 200.0} and study["loading"]["depth"] == 9e-3

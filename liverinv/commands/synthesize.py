@@ -20,32 +20,22 @@ def register(subparsers):
     p.set_defaults(func=run)
 
 
-def load_study(path: Path) -> dict:
-    import yaml
-    from ..cli import UserError
-    if not path.is_file():
-        raise UserError(f"{path}: study file not found")
-    try:
-        study = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as e:
-        raise UserError(f"{path}: not valid YAML ({e})".replace("\n", " ")) from None
-    if not isinstance(study, dict):
-        raise UserError(f"{path}: a study is a mapping of keys (mesh, law, params, loading, imaging)")
-    return study
-
-
-def repo_base(path: Path) -> Path:
-    """Relative paths in a study are relative to the repository root (the parent of
-    config/), or to the study's directory when it is not inside config/studies."""
-    path = path.resolve()
-    if path.parent.name == "studies" and path.parent.parent.name == "config":
-        return path.parent.parent.parent
-    return path.parent
-
-
 def run(args) -> int:
+    from ..cli import UserError
+    from ..fem.solver import ConvergenceError
     from ..imaging.synth import synthesize
-    study = load_study(args.study)
-    synthesize(study, repo_base(args.study), args.out, args.truth_out, source=str(args.study))
+    from ..laws import LawError
+    from ..mesh import MeshError
+    from ..study import StudyError, load_study
+
+    try:
+        study, base = load_study(args.study)  # paths in a study are relative to its file
+        synthesize(study, base, args.out, args.truth_out, source=str(args.study))
+    except (StudyError, LawError, MeshError) as e:
+        raise UserError(str(e)) from None
+    except ConvergenceError as e:
+        raise UserError(f"the truth simulation did not converge: {e}") from None
+    except ValueError as e:
+        raise UserError(f"{args.study}: {e}") from None
     print(f"wrote {args.out}" + (f" and {args.truth_out}" if args.truth_out else ""))
     return 0
