@@ -71,7 +71,6 @@ class Indentation:
         tied[self.footprint, 2] = True
         if punch == "bonded":
             fixed[self.footprint, :2] = True
-        fixed[tied] = False  # footprint on the bottom cannot happen; keep the tie
         free = ~fixed & ~tied
         index = -np.ones(3 * n, dtype=np.int64)
         n_free = int(free.sum())

@@ -89,8 +89,10 @@ class _Engine:
             self.n_residual += 1
         return ev
 
-    def refactor(self, q, dt, state, control):
-        ev = self.evaluate(q, dt, state, True)
+    def refactor(self, q, dt, state, control, ev=None):
+        """Factorize the tangent at q (reusing `ev` when it already holds that tangent)."""
+        if ev is None or ev.K is None:
+            ev = self.evaluate(q, dt, state, True)
         K = self.model.fix_punch(ev.K) if control == "displacement" else ev.K
         t0 = _time.perf_counter()
         self.lin.factorize(K)
@@ -177,7 +179,7 @@ def _step(eng, q, dt, state, control, target):
         if it >= opts.refresh_after and not eng.fresh:
             refresh = True
         if refresh:
-            ev = eng.refactor(q, dt, state, control)
+            ev = eng.refactor(q, dt, state, control, ev)
             eng.fresh, refresh, pairs = True, False, []
             eng.pairs = pairs
         dq = -_lbfgs(r, pairs, eng.solve)
@@ -186,7 +188,9 @@ def _step(eng, q, dt, state, control, target):
         alpha, accepted = 1.0, False
         for _ in range(6):
             q_try = q + alpha * dq
-            ev_try = eng.evaluate(q_try, dt, state, False)
+            # full Newton needs the tangent at the accepted point: compute it with the
+            # residual of the full step instead of evaluating that point twice
+            ev_try = eng.evaluate(q_try, dt, state, opts.method == "full" and alpha == 1.0)
             if _admissible(ev_try):
                 r_try = _residual(model, ev_try, control, target)
                 n_try = np.linalg.norm(r_try)
