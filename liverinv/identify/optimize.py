@@ -136,15 +136,23 @@ class Fit:
                                              initial_simplex=np.array(sim)))
         return self._result(res.x, "nelder-mead", res.message)
 
-    def least_squares(self, max_evaluations=200, fd_step=1e-3, x_scale=1.0):
-        """Bounded trust-region least squares on the residual vector, with a forward
-        finite-difference Jacobian (one solve per parameter, all recorded)."""
+    def least_squares(self, max_evaluations=200, fd_step=1e-3, trust_radius=0.3):
+        """Bounded trust-region least squares (scipy "trf") on the residual vector, with a
+        forward finite-difference Jacobian (one solve per parameter, all recorded).
+
+        The optimizer works in z = (x - x0) / trust_radius, so its first trust region is
+        `trust_radius` normalized units (decades for log parameters) around the start
+        instead of the norm of x0 (scipy's default, about ten decades here, whose first
+        Gauss-Newton step lands far outside where the linear model holds)."""
         x0 = self.to_x(list(self.start.values()))
+        s = float(trust_radius)
+        lo, hi = (self.lo - x0) / s, (self.hi - x0) / s
 
-        def fun(x):
-            return self.residual(x, "least-squares")
+        def fun(z):
+            return self.residual(x0 + s * z, "least-squares")
 
-        def jac(x):
+        def jac(z):
+            x = x0 + s * z
             r0 = self.residual(x, "least-squares")
             J = np.empty((len(r0), len(x)))
             for i in range(len(x)):
@@ -152,13 +160,12 @@ class Fit:
                 e = x.copy()
                 e[i] += h
                 J[:, i] = (self.residual(e, "fd-jacobian") - r0) / h
-            return J
+            return J * s
 
-        res = optimize.least_squares(fun, x0, jac=jac, bounds=(self.lo, self.hi), method="trf",
-                                     x_scale=x_scale, max_nfev=max_evaluations, xtol=1e-8,
-                                     ftol=1e-10, gtol=1e-10)
-        out = self._result(res.x, "least-squares", res.message)
-        out["jacobian"] = res.jac
+        res = optimize.least_squares(fun, np.zeros_like(x0), jac=jac, bounds=(lo, hi), method="trf",
+                                     max_nfev=max_evaluations, xtol=1e-8, ftol=1e-10, gtol=1e-10)
+        out = self._result(x0 + s * res.x, "least-squares", res.message)
+        out["jacobian"] = res.jac / s
         return out
 
     def _result(self, x, method, message):
