@@ -9,7 +9,7 @@ import numpy as np
 
 from .fileio import atomic_path
 
-__all__ = ["plot_run", "export_fields"]
+__all__ = ["plot_run", "plot_fits", "export_fields", "is_fit_file"]
 
 
 def plot_run(runs, out, labels=None):
@@ -36,6 +36,63 @@ def plot_run(runs, out, labels=None):
     ax1.set_ylabel("depth (mm), solid")
     ax1b.set_ylabel("force (N), dashed")
     ax1.grid(alpha=0.3)
+    fig.tight_layout()
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=120, format=Path(out).suffix.lstrip(".") or "png")
+    plt.close(fig)
+    return Path(out)
+
+
+def is_fit_file(path) -> bool:
+    """Whether `path` is a fit file (`liverinv fit`) rather than a run file."""
+    import xarray as xr
+    with xr.open_dataset(path, engine="h5netcdf") as ds:
+        return "history_phi" in ds
+
+
+def plot_fits(fits, out, truth=None, labels=None):
+    """Convergence of one or more fits, as the seed paper's Figs. 5-6: the misfit Phi of
+    every forward solve (dots) and the best so far (line) against the solve count, and each
+    parameter along the fit (accepted evaluations: the best so far) relative to `truth`
+    (dict, e.g. the synthetic truth) or, without it, to the fit's own optimum."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import xarray as xr
+
+    dss = []
+    for path in fits:
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            dss.append(ds.load())
+    names = list(dict.fromkeys(n for ds in dss for n in ds.param.values))
+    fig, axes = plt.subplots(1, 1 + len(names), figsize=(4 + 3.2 * len(names), 3.8), squeeze=False)
+    axes = axes[0]
+    styles = ["-", "--", ":", "-."]
+    for i, ds in enumerate(dss):
+        label = labels[i] if labels else f"{ds.attrs.get('law', '')} {ds.attrs.get('method', '')} {Path(fits[i]).stem}"
+        phi = np.where(ds.history_ok.values, ds.history_phi.values, np.nan)
+        n = np.arange(1, len(phi) + 1)
+        best = np.fmin.accumulate(np.where(np.isnan(phi), np.inf, phi))
+        line, = axes[0].semilogy(n, best, styles[i % 4], label=label)
+        axes[0].semilogy(n, phi, ".", ms=2, color=line.get_color(), alpha=0.5)
+        k_best = np.array([int(np.argmin(np.where(np.isnan(phi[:j + 1]), np.inf, phi[:j + 1]))) for j in range(len(phi))])
+        for j, name in enumerate(names):
+            if name not in ds.param.values:
+                continue
+            v = ds.history_params.sel(param=name).values[k_best]
+            ref = (truth or {}).get(name, float(ds.best.sel(param=name)))
+            axes[1 + j].plot(n, v / ref, styles[i % 4], color=line.get_color())
+    axes[0].set_xlabel("forward solves")
+    axes[0].set_ylabel("Phi (m²/s²): best so far, and each solve")
+    axes[0].legend(fontsize=7)
+    for j, name in enumerate(names):
+        ax = axes[1 + j]
+        ax.set_yscale("log")
+        ax.axhline(1.0, color="k", lw=0.6)
+        ax.set_xlabel("forward solves")
+        ax.set_title(f"{name} / {'truth' if truth and name in truth else 'optimum'}", fontsize=9)
+    for ax in axes:
+        ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
     with atomic_path(out) as tmp:
         fig.savefig(tmp, dpi=120, format=Path(out).suffix.lstrip(".") or "png")

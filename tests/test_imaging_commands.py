@@ -8,7 +8,7 @@ import pytest
 import xarray as xr
 
 from liverinv.cli import UserError
-from liverinv.commands import synthesize, track
+from liverinv.commands import fit, plot, synthesize, track
 from liverinv.imaging.bundle import open_bundle
 
 MESH = Path(__file__).resolve().parents[2] / "shared" / "benchmark" / "cylinder_coarse.msh"
@@ -33,18 +33,26 @@ imaging:
 def _parser():
     p = argparse.ArgumentParser()
     sub = p.add_subparsers(dest="command", required=True)
-    synthesize.register(sub)
-    track.register(sub)
+    for command in (synthesize, track, fit, plot):
+        command.register(sub)
     return p
 
 
-def test_synthesize_then_track(tmp_path):
+@pytest.fixture(scope="module")
+def synthesized(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("synth")
     study = tmp_path / "s.yaml"
     study.write_text(STUDY)
-    bundle, truth, flow, png = (tmp_path / n for n in ("b.h5", "t.nc", "f.nc", "f.png"))
-    p = _parser()
-    a = p.parse_args(["synthesize", str(study), "--out", str(bundle), "--truth-out", str(truth)])
+    bundle, truth = tmp_path / "b.h5", tmp_path / "t.nc"
+    a = _parser().parse_args(["synthesize", str(study), "--out", str(bundle), "--truth-out", str(truth)])
     assert a.func(a) == 0
+    return bundle, truth
+
+
+def test_synthesize_then_track(tmp_path, synthesized):
+    bundle, truth = synthesized
+    flow, png = tmp_path / "f.nc", tmp_path / "f.png"
+    p = _parser()
     with open_bundle(bundle, check_all_frames=True) as b:
         assert b.n_frames == 3 and b.grid.shape == (40, 12, 48)
         np.testing.assert_allclose(np.diff(b.time_s), 1 / 26)
@@ -73,3 +81,36 @@ def test_bad_imaging_key_is_a_user_error(tmp_path):
     with pytest.raises(UserError, match=r"s.yaml: imaging: unknown key\(s\) \['sed'\]"):
         a.func(a)
     assert not (tmp_path / "b.h5").exists()
+
+
+def test_fit_writes_a_complete_fit_file_and_its_convergence_figure(tmp_path, synthesized):
+    bundle, _ = synthesized
+    flow, out, png = tmp_path / "f.nc", tmp_path / "fit.nc", tmp_path / "conv.png"
+    p = _parser()
+    a = p.parse_args(["track", str(bundle), "--mesh", str(MESH), "--out", str(flow)])
+    assert a.func(a) == 0
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(flow), "--mesh", str(MESH),
+                      "--law", "elastic", "--start", "C1=150", "--fixed", "D1=1.5e-3",
+                      "--method", "least-squares", "--max-evaluations", "3",
+                      "--checkpoint", str(tmp_path / "ck"), "--out", str(out)])
+    assert a.func(a) == 0
+    ds = xr.load_dataset(out)
+    assert list(ds.param.values) == ["C1", "C2"]
+    n = ds.sizes["evaluation"]
+    assert n == ds.attrs["n_solves"] >= 3 + 2           # steps and Jacobian solves counted
+    ok = ds.history_ok.values
+    assert float(ds.phi) == pytest.approx(ds.history_phi.values[ok].min(), rel=1e-9)
+    assert float(ds.phi) == pytest.approx(float(ds.phi_vol + ds.phi_ind), rel=1e-12)
+    assert float((ds.residual ** 2).sum()) == pytest.approx(float(ds.phi), rel=1e-9)
+    assert ds.v_fem.shape == (2, 1490, 3) and ds.corr.shape == (2, 2)
+    assert np.allclose(np.diag(ds.corr.values), 1.0)
+    lines = (tmp_path / "ck" / "evaluations.jsonl").read_text().splitlines()
+    assert len(lines) == n
+    a = p.parse_args(["plot", str(out), "--out", str(png), "--truth", "C1=200", "--truth", "C2=5000"])
+    assert a.func(a) == 0
+    assert png.stat().st_size > 5000
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(flow), "--mesh", str(MESH),
+                      "--law", "nope", "--out", str(tmp_path / "x.nc")])
+    with pytest.raises(UserError, match="nope"):
+        a.func(a)
+    assert not (tmp_path / "x.nc").exists()

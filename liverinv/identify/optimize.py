@@ -49,7 +49,9 @@ class Fit:
         hi = np.array([PARAMS[n].upper for n in self.names], float)
         lo = np.where(self.log_scale & (lo <= 0), np.maximum(1e-12, 1e-6 * np.array(list(self.start.values()))), lo)
         self.lo, self.hi = self.to_x(lo), self.to_x(hi)
-        self.history: list[dict] = []
+        self.history: list[dict] = []   # one record per distinct forward solve of this fit
+        self.n_calls = 0                 # objective calls of the optimizers (repeats included)
+        self._used = set()
         self.progress = progress
         self.ckpt = Path(checkpoint) if checkpoint else None
         self._cache = {}
@@ -89,6 +91,9 @@ class Fit:
         """One forward solve at normalized x (or its replay from the checkpoint)."""
         x = np.clip(np.asarray(x, float), self.lo, self.hi)
         key = self._key(x)
+        self.n_calls += 1
+        if key in self._used:       # asked again (e.g. a Jacobian at the accepted point)
+            return self._cache[key]
         if key in self._cache:
             rec = dict(self._cache[key])
             rec["replayed"] = True
@@ -105,6 +110,7 @@ class Fit:
                 with open(self.ckpt / "evaluations.jsonl", "a") as f:
                     f.write(json.dumps({k: v for k, v in rec.items() if k not in ("residual", "replayed")}) + "\n")
             self._cache[key] = rec
+        self._used.add(key)
         self.history.append(rec)
         if self.progress:
             self.progress(rec)
@@ -171,5 +177,5 @@ class Fit:
     def _result(self, x, method, message):
         best = min((r for r in self.history if r["ok"]), key=lambda r: r["phi"], default=None)
         return dict(method=method, message=str(message), x=np.asarray(x), params=self.params_of(x),
-                    best=best, n_solves=sum(1 for r in self.history if not r.get("replayed")) ,
-                    n_evaluations=len(self.history))
+                    best=best, n_solves=len(self.history),
+                    n_replayed=sum(1 for r in self.history if r.get("replayed")), n_calls=self.n_calls)
