@@ -241,6 +241,10 @@ def solve_history(model: Indentation, times, values, control="displacement",
     control : "displacement" or "force"
     options : NewtonOptions
     record : optional callable(frame, q, evaluation) called at every frame after the first
+
+    A model whose equilibrium depends on time beyond the punch (e.g. the registration
+    springs of `liverinv.identify.register`) may define `set_time(t)`: it is called with the
+    end time of every step and sub-step before that step is solved.
     """
     if control not in ("displacement", "force"):
         raise ValueError(f"control must be 'displacement' or 'force', not {control!r}")
@@ -265,11 +269,14 @@ def solve_history(model: Indentation, times, values, control="displacement",
     depth, force = np.zeros(n), np.zeros(n)
     iters, cuts = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
     p = model.punch_index
+    set_time = getattr(model, "set_time", None)
     for k in range(1, n):
         pending = [(times[k - 1], values[k - 1], times[k], values[k], 0)]
         while pending:
             ta, va, tb, vb, level = pending.pop()
             dt = tb - ta
+            if set_time is not None:
+                set_time(tb)
             guesses = [q]
             if opts.extrapolate and len(past) >= 2:
                 guesses.insert(0, _extrapolate(past, tb))
