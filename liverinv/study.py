@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from .fem.solver import NewtonOptions
@@ -92,11 +93,23 @@ def options_of(study: dict) -> NewtonOptions:
     return NewtonOptions(**kw)
 
 
-def simulate_study(study: dict, base_dir: Path = Path(".")):
+def with_times(hist: LoadHistory, times) -> LoadHistory:
+    """`hist` sampled also at `times` (within its span), the value interpolated linearly
+    (exact for the piecewise-linear ramps and force records the engine is driven with)."""
+    times = np.asarray(times, dtype=float)
+    times = times[(times > hist.time[0]) & (times < hist.time[-1])]
+    t = np.unique(np.concatenate([hist.time, times]))
+    t = t[np.concatenate([[True], np.diff(t) > 1e-9 * max(hist.time[-1], 1.0)])]
+    return LoadHistory(hist.control, t, np.interp(t, hist.time, hist.value))
+
+
+def simulate_study(study: dict, base_dir: Path = Path("."), extra_times=None):
     """Run the forward simulation of a (validated) study; returns the run Dataset.
 
     Force control without a CSV (`drive: own`) first runs the displacement-controlled
-    history and then drives the model with the force it produced."""
+    history and then drives the model with the force it produced. `extra_times` (s) are
+    added to the history's frames (e.g. the imaging frame times, so that every image shows
+    an equilibrium state rather than an interpolation between frames)."""
     validate_study(study)
     contact = study.get("contact", {})
     fm = ForwardModel(_resolve(study["mesh"], base_dir), contact.get("punch", "frictionless"),
@@ -105,6 +118,8 @@ def simulate_study(study: dict, base_dir: Path = Path(".")):
                       **({"drained": study["drainage"]["drained"]} if "drained" in study.get("drainage", {}) else {}))
     loading = study["loading"]
     hist = history_of(loading, base_dir)
+    if extra_times is not None:
+        hist = with_times(hist, extra_times)
     opts = options_of(study)
     params, regions = study.get("params", {}), study.get("region_params")
     if loading.get("control", "displacement") == "force" and hist.control == "displacement":

@@ -114,3 +114,19 @@ def test_fit_writes_a_complete_fit_file_and_its_convergence_figure(tmp_path, syn
     with pytest.raises(UserError, match="nope"):
         a.func(a)
     assert not (tmp_path / "x.nc").exists()
+
+
+def test_simulated_truth_has_an_equilibrium_state_at_every_frame(tmp_path):
+    """Frames at 26 Hz fall between the loading steps: they are added to the simulated
+    history, so each volume shows a solved state (not an interpolation between steps)."""
+    study = tmp_path / "s.yaml"
+    study.write_text(STUDY.replace("truth: analytic", "truth: simulate").replace(", frames: 5}", "}").replace("frames: 3", "frames: 4"))
+    truth = tmp_path / "t.nc"
+    a = _parser().parse_args(["synthesize", str(study), "--out", str(tmp_path / "b.h5"), "--truth-out", str(truth)])
+    assert a.func(a) == 0
+    t = xr.load_dataset(truth)
+    frames = np.arange(4) / 26.0
+    assert np.abs(t.time.values[:, None] - frames[None, :]).min(axis=0).max() < 1e-9
+    assert len(t.time) == 4 * 2 + 1 + 3                 # 4 steps per ramp + the 3 frames after t = 0
+    with open_bundle(tmp_path / "b.h5") as b:
+        np.testing.assert_allclose(b.time_s, frames)

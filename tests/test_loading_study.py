@@ -73,3 +73,12 @@ def test_yaml_scientific_notation_without_dot_is_a_number(tmp_path):
     p.write_text("mesh: m.msh\nlaw: SR\nparams: {D1: 1e-3, C1: 2E2}\nloading: {depth: 9e-3, rate: 2e-3, steps: 2}\n")
     study, _ = load_study(p)
     assert study["params"] == {"D1": 1e-3, "C1": 200.0} and study["loading"]["depth"] == 9e-3
+
+
+def test_with_times_adds_frames_on_the_ramp():
+    from liverinv.study import with_times
+    h = ramp_history(1e-3, 1e-3, steps=2, unload=True)
+    h2 = with_times(h, [0.1, 0.5, 1.3, 5.0, 0.5 + 1e-14])
+    np.testing.assert_allclose(h2.time, [0, 0.1, 0.5, 1.0, 1.3, 1.5, 2.0])
+    np.testing.assert_allclose(h2.value, [0, 1e-4, 5e-4, 1e-3, 7e-4, 5e-4, 0], atol=1e-15)
+    assert h2.control == h.control

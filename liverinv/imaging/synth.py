@@ -92,6 +92,24 @@ def make_grid(vol: dict, source="study") -> ImageGrid:
                    f"positive lengths, origin_m 3 coordinates; got {vol}") from None
 
 
+def _frame_times(study, im, base_dir, source, t_end=None):
+    """Imaging frame times: `frames` at `frame_rate_hz` from t = 0, or evenly spanning the
+    loading history."""
+    if t_end is None:
+        from ..study import StudyError, history_of
+        try:
+            t_end = float(history_of(study.get("loading", {}), Path(base_dir)).time[-1])
+        except (StudyError, ValueError, OSError) as e:
+            raise _err(f"{source}: loading: {e}") from None
+    if im["frame_rate_hz"]:
+        times = np.arange(im["frames"]) / float(im["frame_rate_hz"])
+        if times[-1] > t_end + 1e-12:
+            raise _err(f"{source}: imaging: {im['frames']} frames at {im['frame_rate_hz']} Hz last "
+                       f"{times[-1]:.3g} s, longer than the simulation ({t_end:.3g} s)")
+        return times
+    return np.linspace(0.0, t_end, im["frames"])
+
+
 def _truth(study, im, base_dir, source):
     if im["truth"] == "analytic":
         from .weights import mesh_arrays
@@ -108,7 +126,8 @@ def _truth(study, im, base_dir, source):
     except ImportError:
         raise _err(f"{source}: imaging.truth is 'simulate' but the forward engine "
                    "(liverinv.study.simulate_study) is not available; use truth: analytic") from None
-    return simulate_study(study, Path(base_dir))
+    # the imaging frames are simulated frames: each volume shows an equilibrium state
+    return simulate_study(study, Path(base_dir), extra_times=_frame_times(study, im, base_dir, source))
 
 
 def synthesize(study: dict, base_dir, out, truth_out=None, source="study"):
@@ -132,13 +151,7 @@ def synthesize(study: dict, base_dir, out, truth_out=None, source="study"):
         raise _err(f"{source}: imaging: {e}") from None
     ds = _truth(study, im, base_dir, source)
     t_sim = ds["time"].values
-    if im["frame_rate_hz"]:
-        times = np.arange(im["frames"]) / float(im["frame_rate_hz"])
-        if times[-1] > t_sim[-1] + 1e-12:
-            raise _err(f"{source}: imaging: {im['frames']} frames at {im['frame_rate_hz']} Hz last "
-                       f"{times[-1]:.3g} s, longer than the simulation ({t_sim[-1]:.3g} s)")
-    else:
-        times = np.linspace(t_sim[0], t_sim[-1], im["frames"])
+    times = _frame_times(study, im, base_dir, source, t_end=float(t_sim[-1]))
     X, cells = ds["X"].values, ds["cells"].values
     vw = VoxelWeights.build(X, cells, grid)
     if len(vw.voxels) == 0:
