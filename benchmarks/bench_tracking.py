@@ -94,6 +94,8 @@ def main():
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "bench_tracking.json")
     ap.add_argument("--window", default="subtet", choices=["subtet", "element"])
     ap.add_argument("--interpolated-iterations", type=int, default=0)
+    ap.add_argument("--min-support", type=float, default=TrackOptions.min_support_vox,
+                    help="minimum window radius in voxels (TrackOptions.min_support_vox; 0 = element windows only)")
     args = ap.parse_args()
     args.workdir.mkdir(parents=True, exist_ok=True)
     P, C = mesh_arrays(str(MESH))
@@ -115,7 +117,8 @@ def main():
         if args.render_only:
             continue
         opts = TrackOptions(max_iterations=args.iterations,
-                            interpolated_iterations=args.interpolated_iterations)
+                            interpolated_iterations=args.interpolated_iterations,
+                            min_support_vox=args.min_support)
         with open_bundle(path) as b:
             flow = track_bundle(b, P, C, opts, stride=tuple(args.stride), window=args.window)
             est = grid.vec_to_vox(flow["u_of"].values)

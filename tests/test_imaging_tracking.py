@@ -91,3 +91,37 @@ def test_nodes_outside_view_have_zero_confidence(scene):
     outside = ~grid.inside(P2)
     assert outside.any()
     assert np.all(c[outside] == 0.0)
+
+
+def test_min_support_window_small_elements():
+    """Minimum spatial support: on a mesh of small elements (4 mm cubes, 8 x 8 x 13 voxels)
+    the element windows are small; a cone of 20 voxels around each node recovers a rigid
+    sub-voxel translation at every node in view (measured 0.0012 voxel RMS, 0.0045 max;
+    element windows alone 0.017 RMS, 0.06 max)."""
+    P, C = box_tet10([-12e-3, -12e-3, -3e-3], [12e-3, 12e-3, 21e-3], 6)
+    grid = ImageGrid((40, 40, 64), SPACING, (-9.75e-3, -9.75e-3, -0.9e-3))
+    vw = VoxelWeights.build(P, C, grid)
+    R = 20.0
+    Wm = vw.with_min_support(P, R)
+    assert (Wm - vw.W).min() >= 0.0                       # never smaller than the hat
+    xa = np.stack(np.unravel_index(vw.voxels, grid.shape), 1).astype(float)
+    n = int(np.argmin(np.linalg.norm(P - P.mean(0), axis=1)))
+    d = np.linalg.norm(xa - grid.to_vox(P[n]), axis=1)
+    row = Wm[n].toarray().ravel()
+    assert np.allclose(np.maximum(row, 0)[d < R], np.maximum(vw.W[n].toarray().ravel(), 1 - d / R)[d < R])
+    assert np.all(row[d >= R] == vw.W[n].toarray().ravel()[d >= R])
+    sc = SpeckleScene(vw, ImagingOptions(mode="warp", seed=3))
+    shift_vox = np.array([0.23, -0.11, 0.17])
+    u1 = np.tile(grid.vec_to_m(shift_vox), (len(P), 1))
+    f0, f1 = sc.frame(0 * u1), sc.frame(u1)
+    out = {}
+    for ms in (0.0, R):
+        tr = NodalTracker(vw, P, TrackOptions(max_iterations=8, tol_vox=1e-4, min_support_vox=ms))
+        tr.start(f0)
+        v, c = tr.step(f1)
+        m = c.min(1) > 0.05
+        assert m.sum() >= 100
+        e = np.linalg.norm(v - shift_vox, axis=1)[m]
+        out[ms] = (np.sqrt(np.mean(e ** 2)), e.max())
+    assert out[R][0] < 0.003 and out[R][1] < 0.01, out
+    assert out[R][0] < 0.5 * out[0.0][0], out

@@ -20,6 +20,10 @@ along one diagonal).
   element (reproduces a forward run's field on this mesh; measured no more accurate on
   the benchmark and slower).
 
+* Minimum support (`VoxelWeights.with_min_support`, used by the tracker): each window is
+  widened to at least a cone of a given radius in voxels around its node,
+  ``max(N_n, 1 - r / R)``, so that nodes of small elements average over enough speckle.
+
 The weights are built once per mesh and image grid (`VoxelWeights.build`).
 """
 
@@ -206,6 +210,25 @@ class VoxelWeights:
                  m, grid.size, W.nnz)
         return cls(voxels=vox, W=W, grid=grid, n_nodes=n, Wi=Wi,
                    adjacency=cls.node_adjacency(cells, n))
+
+    def with_min_support(self, points, radius_vox: float) -> sp.csr_matrix:
+        """Tracking windows with a minimum spatial support: node n's weight at voxel a is
+        ``max(W[n, a], 1 - |x_a - X_n| / radius_vox)`` (a cone of `radius_vox` voxels around
+        the node, over the voxels inside the mesh). Nodes whose elements reach further than
+        the radius in every direction keep their window; the small windows of small
+        elements (rim of the punch, refined surfaces) grow to about the radius."""
+        from scipy.spatial import cKDTree
+        if radius_vox <= 0 or not len(self.voxels):
+            return self.W
+        xa = np.stack(np.unravel_index(self.voxels, self.grid.shape), 1).astype(float)
+        xn = self.grid.to_vox(np.asarray(points, float))
+        lists = cKDTree(xa).query_ball_point(xn, radius_vox)
+        rows = np.repeat(np.arange(len(xn)), [len(l) for l in lists])
+        cols = np.concatenate([np.asarray(l, np.int64) for l in lists]) if len(rows) else np.zeros(0, np.int64)
+        val = 1.0 - np.linalg.norm(xa[cols] - xn[rows], axis=1) / radius_vox
+        keep = val > 0
+        T = sp.csr_matrix((val[keep], (rows[keep], cols[keep])), shape=self.W.shape)
+        return self.W.maximum(T).tocsr()
 
     def interpolate(self, nodal: np.ndarray) -> np.ndarray:
         """Nodal values (n, ...) interpolated to the active voxels (m, ...)."""
