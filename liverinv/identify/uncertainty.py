@@ -1,9 +1,11 @@
 """Gauss-Newton uncertainty at the optimum, and what the indenter data alone can tell.
 
 With the Jacobian J of the residual vector in normalized parameters x (log10 for log-scaled
-parameters), cov_x = s^2 (J^T J)^-1 with s^2 = |r|^2 / (m - n). A log-scaled parameter's
-relative standard deviation is ln(10) sd_x. Repeating this with only the indenter rows of
-J shows which parameters the force/displacement record alone cannot determine.
+parameters), cov_x = s^2 (J^T J)^-1 with s^2 = |r|^2 / (m - n), m the number of rows that
+carry data (zero-confidence rows of the field term are all-zero and do not count). A
+log-scaled parameter's relative standard deviation is ln(10) sd_x. Repeating this with only
+the indenter rows of J (and their own residual scale) shows which parameters the
+force/displacement record alone cannot determine.
 """
 
 from __future__ import annotations
@@ -26,13 +28,14 @@ def _cov(J, s2):
 def gauss_newton(J, r, n_ind, log_scale):
     """Covariance, correlation, condition number and relative standard deviations of the
     parameters, from all residuals and from the last `n_ind` (indenter) residuals only."""
-    m, n = J.shape
-    s2 = float(r @ r) / max(m - n, 1)
+    n = J.shape[1]
+    live = np.any(J != 0, axis=1) | (r != 0)
+    s2 = float(r @ r) / max(int(live.sum()) - n, 1)
     cov, cond = _cov(J, s2)
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     corr = cov / np.outer(sd, sd) if np.all(sd > 0) else np.full_like(cov, np.nan)
-    J_ind = J[-n_ind:]
-    cov_ind, cond_ind = _cov(J_ind, s2)
+    J_ind, r_ind = J[-n_ind:], r[-n_ind:]
+    cov_ind, cond_ind = _cov(J_ind, float(r_ind @ r_ind) / max(n_ind - n, 1))
     sd_ind = np.sqrt(np.clip(np.diag(cov_ind), 0, None))
     rel = np.where(log_scale, np.log(10.0) * sd, sd)
     rel_ind = np.where(log_scale, np.log(10.0) * sd_ind, sd_ind)
