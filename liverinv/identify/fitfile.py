@@ -11,19 +11,7 @@ from ..laws import PARAMS
 from .optimize import Fit
 from .uncertainty import gauss_newton
 
-__all__ = ["fit_dataset", "jacobian_at"]
-
-
-def jacobian_at(fit: Fit, x, fd_step=1e-3):
-    """Forward-difference Jacobian of the residual vector at x (solves recorded)."""
-    r0 = fit.residual(x, "uncertainty")
-    J = np.empty((len(r0), len(x)))
-    for i in range(len(x)):
-        h = fd_step if x[i] + fd_step <= fit.hi[i] else -fd_step
-        e = np.array(x, float)
-        e[i] += h
-        J[:, i] = (fit.residual(e, "uncertainty") - r0) / h
-    return J, r0
+__all__ = ["fit_dataset"]
 
 
 def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset:
@@ -35,7 +23,7 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
     x_best = np.asarray(best["x"]) if best else result["x"]
     ev = fit.obj(fit.params_of(x_best))  # the optimum once more: residuals and velocities
     if jacobian is None:
-        jacobian, _ = jacobian_at(fit, x_best)
+        jacobian, _ = fit.fd_jacobian(x_best, purpose="uncertainty", fd_purpose="uncertainty")
     unc = gauss_newton(jacobian, ev.residual, fit.obj.M, fit.log_scale)
     units = [PARAMS[k].unit for k in names]
     ds = xr.Dataset(

@@ -122,6 +122,19 @@ class Fit:
             return rec["residual"]
         return np.full(self.obj.n_residuals, np.sqrt(FAILED_PHI / self.obj.n_residuals))
 
+    def fd_jacobian(self, x, fd_step=1e-3, purpose="step", fd_purpose="fd-jacobian"):
+        """Forward-difference Jacobian of the residual vector at normalized x (one recorded
+        solve per parameter; steps backward at an upper bound). Returns (J, r(x))."""
+        x = np.asarray(x, float)
+        r0 = self.residual(x, purpose)
+        J = np.empty((len(r0), len(x)))
+        for i in range(len(x)):
+            h = fd_step if x[i] + fd_step <= self.hi[i] else -fd_step
+            e = x.copy()
+            e[i] += h
+            J[:, i] = (self.residual(e, fd_purpose) - r0) / h
+        return J, r0
+
     # -- optimizers -----------------------------------------------------------------------
     def nelder_mead(self, max_evaluations=400, xatol=1e-3, fatol=1e-4, initial_step=0.1):
         """Bounded downhill simplex (scipy, Gao-Han adaptive off) in normalized parameters;
@@ -161,15 +174,7 @@ class Fit:
             return self.residual(x0 + s * z, "least-squares")
 
         def jac(z):
-            x = x0 + s * z
-            r0 = self.residual(x, "least-squares")
-            J = np.empty((len(r0), len(x)))
-            for i in range(len(x)):
-                h = fd_step if x[i] + fd_step <= self.hi[i] else -fd_step
-                e = x.copy()
-                e[i] += h
-                J[:, i] = (self.residual(e, "fd-jacobian") - r0) / h
-            return J * s
+            return self.fd_jacobian(x0 + s * z, fd_step, "least-squares", "fd-jacobian")[0] * s
 
         res = optimize.least_squares(fun, np.zeros_like(x0), jac=jac, bounds=(lo, hi), method="dogbox",
                                      max_nfev=max_evaluations, xtol=1e-8, ftol=1e-10, gtol=1e-10)
