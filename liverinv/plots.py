@@ -75,7 +75,8 @@ def plot_fits(fits, out, truth=None, labels=None):
         best = np.fmin.accumulate(np.where(np.isnan(phi), np.inf, phi))
         line, = axes[0].semilogy(n, best, styles[i % 4], label=label)
         axes[0].semilogy(n, phi, ".", ms=2, color=line.get_color(), alpha=0.5)
-        k_best = np.array([int(np.argmin(np.where(np.isnan(phi[:j + 1]), np.inf, phi[:j + 1]))) for j in range(len(phi))])
+        improved = phi < np.concatenate([[np.inf], best[:-1]])           # a new best at j
+        k_best = np.maximum.accumulate(np.where(improved, np.arange(len(phi)), 0))
         for j, name in enumerate(names):
             if name not in ds.param.values:
                 continue

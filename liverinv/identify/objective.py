@@ -115,6 +115,9 @@ class Objective:
         self.ddot_exp = np.diff(self.d_drive) / np.diff(t)
         self.M = len(self.ddot_exp)
         self.n_residuals = self.v_of.size + self.M
+        # the intuitive axial figure: accumulated tracked motion at confident nodes
+        self._U_of = np.cumsum(data.u_of[..., 2], axis=0)
+        self._confident = data.c_of[..., 2] >= confidence_floor
 
     def model_motion(self, t, u):
         """Frame-pair nodal velocities (K, N, 3) of a model history u(t)."""
@@ -142,10 +145,9 @@ class Objective:
         phi_vol, phi_ind = float(r_vol @ r_vol), float(r_ind @ r_ind)
         # intuitive figures: displacement errors (accumulated tracked motion for the field)
         rms_depth = float(np.sqrt(np.mean((self.d_drive - h.depth) ** 2)))
-        U_of = np.cumsum(d.u_of[..., 2], axis=0)
         U_fem = at(d.t1)[..., 2] - at(d.t0[:1])[..., 2]
-        conf = d.c_of[..., 2] >= self.confidence_floor
-        rms_axial = float(np.sqrt(np.mean((U_of - U_fem)[conf] ** 2))) if conf.any() else np.nan
+        conf = self._confident
+        rms_axial = float(np.sqrt(np.mean((self._U_of - U_fem)[conf] ** 2))) if conf.any() else np.nan
         return Evaluation(dict(params), True, phi_vol + phi_ind, phi_vol, phi_ind, rms_depth, rms_axial,
                           _time.perf_counter() - t_start, "", np.concatenate([r_vol, r_ind]), v_fem,
                           int(h.iterations.sum()))
