@@ -12,6 +12,10 @@ tracked motion u_OF and confidence c_OF at N nodes:
 (velocities in m/s, Phi in m^2/s^2). The model's nodal motion between frames is the
 difference of its displacement interpolated linearly in time at t1_k and t0_k. The residual
 vector r = [sqrt(c/(N K)) (v_OF - v_FEM), (ddot_exp - ddot_model)/sqrt(M)] has |r|^2 = Phi.
+
+The model mesh may differ from the mesh the motion was tracked on (e.g. one refined at the
+punch rim, where the contact stress is singular): the model's displacement is then
+interpolated with its quadratic shape functions at the tracked nodes (`Measurements.X`).
 """
 
 from __future__ import annotations
@@ -40,12 +44,14 @@ class Measurements:
     t1: np.ndarray        # (K,) s, end of each tracked frame pair
     u_of: np.ndarray      # (K, N, 3) m, tracked motion from t0 to t1
     c_of: np.ndarray      # (K, N, 3) confidence in [0, 1]
+    X: np.ndarray | None = None  # (N, 3) m, reference positions of the tracked nodes
 
     @classmethod
     def from_flow(cls, flow, t_ind, depth, force):
         """From a flow Dataset (`liverinv track`) and indenter samples."""
         return cls(np.asarray(t_ind, float), np.asarray(depth, float), np.asarray(force, float),
-                   flow.time_start.values, flow.time_end.values, flow.u_of.values, flow.c_of.values)
+                   flow.time_start.values, flow.time_end.values, flow.u_of.values, flow.c_of.values,
+                   flow.X.values if "X" in flow else None)
 
     @classmethod
     def from_run(cls, run, frames=None, confidence=1.0):
@@ -56,7 +62,7 @@ class Measurements:
         idx = np.arange(len(t)) if frames is None else np.asarray(frames)
         u_of = u[idx[1:]] - u[idx[:-1]]
         return cls(t, run.indenter_depth.values, run.indenter_force.values, t[idx[:-1]], t[idx[1:]],
-                   u_of, np.full(u_of.shape, float(confidence)))
+                   u_of, np.full(u_of.shape, float(confidence)), run.X.values if "X" in run else None)
 
 
 @dataclass
@@ -86,18 +92,19 @@ class Objective:
     fixed : parameters held fixed (not identified), merged into every evaluation
     options : NewtonOptions of the forward solves
     confidence_floor : nodes with c_z below it do not count in the RMS displacement figure
+    outside_tol : tracked nodes may lie this far (m) outside the model mesh, where the
+        model's field is extrapolated (curved boundaries discretized differently by the two
+        meshes); farther is an error
     """
 
     def __init__(self, forward: ForwardModel, law: str, data: Measurements, fixed=None,
-                 options: NewtonOptions | None = None, confidence_floor=0.1):
+                 options: NewtonOptions | None = None, confidence_floor=0.1, outside_tol=2e-3):
         self.forward, self.law, self.data = forward, law, data
         self.fixed = dict(fixed or {})
         self.options = options or NewtonOptions()
         self.confidence_floor = confidence_floor
-        n_nodes = forward.mesh.n_nodes
-        if data.u_of.shape[1] != n_nodes:
-            raise ValueError(f"tracked motion has {data.u_of.shape[1]} nodes, the inverse mesh {n_nodes}")
         self.K, self.N = data.u_of.shape[:2]
+        self.to_data = self._interpolation(forward.mesh, data, outside_tol)
         dt_f = data.t1 - data.t0
         if np.any(dt_f <= 0):
             raise ValueError("frame pairs need t1 > t0")
@@ -119,6 +126,45 @@ class Objective:
         self._U_of = np.cumsum(data.u_of[..., 2], axis=0)
         self._confident = data.c_of[..., 2] >= confidence_floor
 
+    @staticmethod
+    def _interpolation(mesh, data, outside_tol):
+        """None when the tracked nodes are the model mesh's nodes, else the sparse matrix
+        that interpolates the model's nodal field at them."""
+        P = mesh.points
+        N = data.u_of.shape[1]
+        if data.X is None:
+            if N != len(P):
+                raise ValueError(f"tracked motion has {N} nodes, the model mesh {len(P)}, and no node "
+                                 "coordinates to interpolate at")
+            return None
+        X = np.asarray(data.X, float)
+        if X.shape != (N, 3):
+            raise ValueError(f"tracked node coordinates have shape {X.shape}, expected ({N}, 3)")
+        scale = float(np.ptp(P, axis=0).max())
+        if X.shape == P.shape and np.allclose(X, P, rtol=0, atol=1e-9 * scale):
+            return None
+        from ..fem.probe import Probe
+        probe = Probe(P, mesh.cells, X)
+        # distance outside: barycentric excess times the element's size
+        T = P[mesh.cells[probe.element, :4]]
+        h = np.linalg.norm(T[:, 1:] - T[:, :1], axis=2).max(1)
+        far = probe.outside * h > outside_tol
+        if far.any():
+            raise ValueError(f"{int(far.sum())} tracked nodes lie outside the model mesh (farthest "
+                             f"{float((probe.outside * h).max()):.3g} m > {outside_tol:g} m): is it the "
+                             "same specimen geometry?")
+        log.info("model mesh: %d nodes; tracked nodes interpolated, %d outside it by at most %.2g m",
+                 len(P), int((probe.outside > 0).sum()), float((probe.outside * h).max()))
+        return probe.matrix
+
+    def at_data_nodes(self, u):
+        """Model nodal field (..., n_model, 3) at the tracked nodes (..., N, 3)."""
+        if self.to_data is None:
+            return u
+        f = np.moveaxis(u, -2, 0)
+        out = self.to_data @ f.reshape(f.shape[0], -1)
+        return np.moveaxis(out.reshape((-1,) + f.shape[1:]), 0, -2)
+
     def model_motion(self, t, u):
         """Frame-pair nodal velocities (K, N, 3) of a model history u(t)."""
         def at(tq):
@@ -138,7 +184,7 @@ class Objective:
         except (ConvergenceError, FloatingPointError, ValueError) as e:
             return Evaluation(dict(params), False, np.nan, np.nan, np.nan,
                               wall_s=_time.perf_counter() - t_start, message=str(e))
-        v_fem, at = self.model_motion(self.t_drive, h.u)
+        v_fem, at = self.model_motion(self.t_drive, self.at_data_nodes(h.u))
         r_vol = (self._w_vol * (self.v_of - v_fem)).ravel()
         ddot = np.diff(h.depth) / np.diff(self.t_drive)
         r_ind = (self.ddot_exp - ddot) / np.sqrt(self.M)
