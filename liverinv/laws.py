@@ -26,18 +26,19 @@ class Param:
     upper: float
     scale: str  # "log": optimized in log space; "linear": bounded fraction
     description: str
+    search: tuple = (None, None)  # range of the multi-start design (soft tissue, this test)
 
 
 PARAMS = {p.name: p for p in [
-    Param("C1", "Pa", 1e-2, 1e5, "log", "first reduced-polynomial coefficient (mu0 = 2 C1)"),
-    Param("C2", "Pa", 0.0, 1e6, "log", "second reduced-polynomial coefficient (stiffening)"),
-    Param("D1", "1/Pa", 1e-7, 1.0, "log", "linear bulk compliance (K0 = 2 / D1)"),
-    Param("D2", "1/Pa", 1e-9, 1e3, "log", "quartic bulk compliance (absent: no quartic term)"),
-    Param("g1", "1", 0.0, 0.999, "linear", "relative shear relaxation amplitude"),
-    Param("tau_g1", "s", 1e-4, 1e3, "log", "shear relaxation time"),
-    Param("k1", "1", 0.0, 0.999, "linear", "relative bulk relaxation amplitude"),
-    Param("tau_k1", "s", 1e-4, 1e3, "log", "bulk relaxation time"),
-    Param("kappa", "m^4/(N s)", 1e-15, 1e-3, "log", "Darcy permeability of the biphasic mixture"),
+    Param("C1", "Pa", 1e-2, 1e5, "log", "first reduced-polynomial coefficient (mu0 = 2 C1)", (10.0, 1e4)),
+    Param("C2", "Pa", 0.0, 1e6, "log", "second reduced-polynomial coefficient (stiffening)", (10.0, 1e5)),
+    Param("D1", "1/Pa", 1e-7, 1.0, "log", "linear bulk compliance (K0 = 2 / D1)", (1e-5, 1e-1)),
+    Param("D2", "1/Pa", 1e-9, 1e3, "log", "quartic bulk compliance (absent: no quartic term)", (1e-4, 1e2)),
+    Param("g1", "1", 0.0, 0.999, "linear", "relative shear relaxation amplitude", (0.05, 0.95)),
+    Param("tau_g1", "s", 1e-4, 1e3, "log", "shear relaxation time", (1e-2, 1e1)),
+    Param("k1", "1", 0.0, 0.999, "linear", "relative bulk relaxation amplitude", (0.05, 0.95)),
+    Param("tau_k1", "s", 1e-4, 1e3, "log", "bulk relaxation time", (1e-2, 1e1)),
+    Param("kappa", "m^4/(N s)", 1e-15, 1e-3, "log", "Darcy permeability of the biphasic mixture", (1e-10, 1e-5)),
 ]}
 
 # value a parameter takes when a law does not have it

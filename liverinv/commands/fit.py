@@ -13,12 +13,20 @@ def register(sub):
                        description=__doc__)
     p.add_argument("--bundle", required=True, help="measurement bundle (HDF5) with the indenter record")
     p.add_argument("--flow", required=True, help="tracked nodal motion (liverinv track)")
-    p.add_argument("--mesh", required=True, help="inverse mesh (the one the flow was tracked on)")
+    p.add_argument("--mesh", required=True, help="the mesh the flow was tracked on")
+    p.add_argument("--model-mesh", help="mesh of the forward model, if not --mesh (e.g. one refined at "
+                   "the punch rim); its displacement is interpolated at the tracked nodes")
     p.add_argument("--law", required=True)
     p.add_argument("--start", action="append", default=[], metavar="NAME=VALUE", help="start value (repeatable)")
     p.add_argument("--fixed", action="append", default=[], metavar="NAME=VALUE", help="held fixed (repeatable)")
     p.add_argument("--method", choices=["nelder-mead", "least-squares"], default="least-squares")
-    p.add_argument("--max-evaluations", type=int, default=None)
+    p.add_argument("--max-evaluations", type=int, default=None,
+                   help="Nelder-Mead: forward solves; least squares: residual evaluations per run")
+    p.add_argument("--design-points", type=int, default=0, metavar="N",
+                   help="least squares: after the run from the start, screen N points of a Sobol design "
+                        "over the parameters' search ranges and run least squares from the best "
+                        "--polish of them (for laws with several minima, e.g. SR)")
+    p.add_argument("--polish", type=int, default=2, help="design points polished by least squares")
     p.add_argument("--checkpoint", help="folder for the evaluation log; an interrupted fit resumes from it")
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
     p.add_argument("--out", required=True, help="fit file (netCDF)")
@@ -51,7 +59,10 @@ def run(args) -> int:
             t_ind, depth, force = ind.time_s, ind.displacement_m, ind.force_N
         with xr.open_dataset(args.flow, engine="h5netcdf") as flow:
             flow = flow.load()
-        fm = ForwardModel(args.mesh, quadrature_order=args.quadrature_order)
+        fm = ForwardModel(args.model_mesh or args.mesh, quadrature_order=args.quadrature_order)
+        if not args.model_mesh and flow.sizes.get("node") != fm.mesh.n_nodes:
+            raise UserError(f"{args.flow} has {flow.sizes.get('node')} nodes, {args.mesh} "
+                            f"{fm.mesh.n_nodes}: was it tracked on this mesh?")
         obj = Objective(fm, args.law, Measurements.from_flow(flow, t_ind, depth, force), fixed=fixed)
     except (LawError, MeshError, ValueError, KeyError, OSError) as e:
         raise UserError(str(e)) from None
@@ -68,12 +79,17 @@ def run(args) -> int:
     if args.method == "nelder-mead":
         result = fit.nelder_mead(max_evaluations=args.max_evaluations or 400)
         jac = None
+    elif args.design_points > 0:
+        result = fit.multistart(args.design_points, args.polish, max_evaluations=args.max_evaluations or 100)
+        jac = result.get("jacobian")
     else:
         result = fit.least_squares(max_evaluations=args.max_evaluations or 100)
         jac = result.get("jacobian")
     bar.close()
     ds = fit_dataset(fit, result, jac, attrs=dict(bundle=str(args.bundle), flow=str(args.flow),
-                                                   mesh=str(args.mesh), mesh_sha256=file_sha256(args.mesh)))
+                                                   mesh=str(args.mesh), mesh_sha256=file_sha256(args.mesh),
+                                                   model_mesh=str(args.model_mesh or args.mesh),
+                                                   model_mesh_sha256=file_sha256(args.model_mesh or args.mesh)))
     write_netcdf(ds, args.out)
     best_p = ", ".join(f"{k}={v:.4g}" for k, v in zip(ds.param.values, ds.best.values))
     print(f"wrote {args.out}: {best_p}; Phi = {float(ds.phi):.3e} (vol {float(ds.phi_vol):.3e}, "

@@ -155,18 +155,19 @@ class Fit:
                                              initial_simplex=np.array(sim)))
         return self._result(res.x, "nelder-mead", res.message)
 
-    def least_squares(self, max_evaluations=200, fd_step=1e-3, trust_radius=0.3):
+    def least_squares(self, max_evaluations=200, fd_step=1e-3, trust_radius=0.3, x0=None):
         """Bounded trust-region least squares (scipy "dogbox": a box-shaped trust region
         intersected with the bounds) on the residual vector, with a forward finite-difference
-        Jacobian (one solve per parameter, all recorded).
+        Jacobian (one solve per parameter, all recorded), from the start or from normalized x0.
 
         The optimizer works in z = (x - x0) / trust_radius, so its first trust region is
         `trust_radius` normalized units (decades for log parameters) in every direction
         around the start. (scipy's default first radius is |x0|, about ten decades here, and
         its "trf" method rescales steps by the distance to the bounds: from Table 1 seed 1
         the first step jumped to C2 1489, kappa 5e-10, far from where the linear model
-        holds.)"""
-        x0 = self.to_x(list(self.start.values()))
+        holds.) `max_evaluations` bounds scipy's residual evaluations (each accepted step
+        adds a Jacobian of one solve per parameter)."""
+        x0 = self.to_x(list(self.start.values())) if x0 is None else np.clip(np.asarray(x0, float), self.lo, self.hi)
         s = float(trust_radius)
         lo, hi = (self.lo - x0) / s, (self.hi - x0) / s
 
@@ -180,6 +181,41 @@ class Fit:
                                      max_nfev=max_evaluations, xtol=1e-8, ftol=1e-10, gtol=1e-10)
         out = self._result(x0 + s * res.x, "least-squares", res.message)
         out["jacobian"] = res.jac / s
+        out["x_end"] = x0 + s * res.x
+        return out
+
+    def design(self, n_points, seed=0):
+        """`n_points` normalized points of a scrambled Sobol sequence (fixed seed) over the
+        parameters' search ranges (`Param.search`, clipped to the bounds). The design does not
+        depend on the start, so fits from different starts screen the same points."""
+        from scipy.stats import qmc
+
+        lo = np.array([PARAMS[n].search[0] if PARAMS[n].search[0] is not None else np.nan for n in self.names], float)
+        hi = np.array([PARAMS[n].search[1] if PARAMS[n].search[1] is not None else np.nan for n in self.names], float)
+        lo = np.where(np.isnan(lo), self.to_p(self.lo), lo)
+        hi = np.where(np.isnan(hi), self.to_p(self.hi), hi)
+        lo, hi = np.maximum(self.to_x(lo), self.lo), np.minimum(self.to_x(hi), self.hi)
+        u = qmc.Sobol(len(self.names), scramble=True, seed=seed).random(n_points)
+        return lo + u * (hi - lo)
+
+    def multistart(self, n_design=16, n_polish=2, max_evaluations=200, fd_step=1e-3, trust_radius=0.3,
+                   seed=0):
+        """Least squares from the start, then a global stage for laws with several minima
+        (e.g. a relaxation time below the frame interval or a nearly incompressible valley,
+        where the gradient vanishes): Phi at the `n_design` points of `design` (one solve
+        each), least squares from the `n_polish` best of them; the result is the lowest Phi of
+        all solves. Every solve is recorded in the history."""
+        runs = [self.least_squares(max_evaluations, fd_step, trust_radius)]
+        pts = self.design(n_design, seed)
+        phis = np.array([self.evaluate(x, "design")["phi"] for x in pts])
+        for k in np.argsort(phis, kind="stable")[:n_polish]:
+            runs.append(self.least_squares(max_evaluations, fd_step, trust_radius, x0=pts[k]))
+        best_run = min(runs, key=lambda r: self.evaluate(r["x_end"], "least-squares")["phi"])
+        out = self._result(best_run["x_end"], "least-squares multistart",
+                           f"{len(runs)} least-squares runs (start + {n_polish} of {n_design} design points); "
+                           f"best run: {best_run['message']}")
+        out["jacobian"] = best_run["jacobian"]
+        out["runs"] = [dict(x_end=r["x_end"], message=r["message"]) for r in runs]
         return out
 
     def _result(self, x, method, message):
