@@ -13,7 +13,12 @@
 Finished fits are read back; an interrupted fit resumes from its checkpoint.
 
     python benchmarks/validate_tables.py --out results/validation [--methods least-squares]
-        [--laws PE SR] [--seeds 1 3] [--max-evaluations N]
+        [--laws PE SR] [--seeds 1 3] [--max-evaluations N] [--model-mesh medium]
+        [--design-points 16]
+
+`--model-mesh` runs the forward model on another mesh than the coarse tracking mesh (a path,
+or a `liverinv.meshgen` preset name generated into OUT); `--design-points N` adds the
+multi-start stage to least squares (`liverinv fit --design-points`).
 """
 
 from __future__ import annotations
@@ -54,9 +59,21 @@ def main(argv=None):
                     help="fit the exact truth motion (fine-mesh truth sampled at the coarse nodes, "
                          "the tracked confidence as weights) instead of the tracked motion: "
                          "separates the inverse mesh's bias from the tracking error")
+    ap.add_argument("--model-mesh", default=None,
+                    help="forward-model mesh: a path or a liverinv.meshgen preset (e.g. medium)")
+    ap.add_argument("--design-points", type=int, default=0, help="least squares: multi-start design points")
     args = ap.parse_args(argv)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
+    model_mesh = args.model_mesh
+    if model_mesh and not Path(model_mesh).exists():
+        from liverinv.meshgen import PRESETS, generate_indentation_mesh
+        if model_mesh not in PRESETS:
+            ap.error(f"--model-mesh {model_mesh}: neither a file nor a preset ({', '.join(PRESETS)})")
+        path = out / f"model_{model_mesh}.msh"
+        if not path.exists():
+            generate_indentation_mesh(path, **PRESETS[model_mesh])
+        model_mesh = path
     bundle, truth, flow = out / "bundle.h5", out / "truth.nc", out / "flow.nc"
     if not bundle.exists():
         print(f"synthesize: {sh('liverinv', 'synthesize', ROOT / 'config/studies/table1_truth.yaml', '--out', bundle, '--truth-out', truth):.0f} s")
@@ -74,14 +91,22 @@ def main(argv=None):
                 if args.seeds and i not in args.seeds:
                     continue
                 tag = f"{law}_{method}{'_exact' if args.exact_motion else ''}"
+                if model_mesh:
+                    tag += f"_{Path(model_mesh).stem}"
+                if args.design_points and method == "least-squares":
+                    tag += f"_ds{args.design_points}"
                 fit = out / f"fit_{tag}_seed{i}.nc"
                 cmd = ["liverinv", "fit", "--bundle", bundle, "--flow", flow, "--mesh", COARSE,
                        "--law", law, "--method", method, "--checkpoint", out / f"ckpt_{tag}_{i}",
                        "--out", fit] + [f"--start={k}={v}" for k, v in seed.items()]
                 if args.max_evaluations:
                     cmd += ["--max-evaluations", args.max_evaluations]
+                if model_mesh:
+                    cmd += ["--model-mesh", model_mesh]
+                if args.design_points and method == "least-squares":
+                    cmd += ["--design-points", args.design_points]
                 if not fit.exists():
-                    sh(*cmd)
+                    print(f"{fit.name}: {sh(*cmd):.0f} s wall", flush=True)
                 with xr.open_dataset(fit, engine="h5netcdf") as ds:
                     ds = ds.load()
                 fits[(law, method, i)] = fit

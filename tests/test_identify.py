@@ -88,3 +88,87 @@ def test_biphasic_law_recovered_from_table1_seeds_on_self_consistent_data():
         out = Fit(obj, start).least_squares(max_evaluations=60)
         for k, v in truth.items():
             assert out["params"][k] == pytest.approx(v, rel=1e-3), (start, k)
+
+
+def test_model_mesh_other_than_the_tracking_mesh(problem, tmp_path):
+    """The tracked nodes of one mesh, the model on another: the model's field is interpolated
+    there with its shape functions (exact for a linear field), the misfit at the truth is
+    discretization only, and a specimen of another geometry is refused."""
+    from liverinv.meshgen import generate_indentation_mesh
+    fm, meas = problem
+    other = ForwardModel(generate_indentation_mesh(tmp_path / "other.msh", h_far=0.025, h_rim=0.0035))
+    assert other.mesh.n_nodes != fm.mesh.n_nodes
+    obj = Objective(other, "elastic", meas)
+    A = np.array([[1e-3, 2e-3, -1e-3], [0.5e-3, 0.0, 1e-3], [-2e-3, 1e-3, 3e-3]])
+    u = np.stack([other.mesh.points @ A.T, 2 * other.mesh.points @ A.T])
+    assert np.allclose(obj.at_data_nodes(u), np.stack([meas.X @ A.T, 2 * meas.X @ A.T]), rtol=0, atol=1e-12)
+    assert Objective(fm, "elastic", meas).to_data is None
+    at_truth, off = obj(TRUTH), obj(START)
+    assert at_truth.ok and at_truth.phi < 0.05 * off.phi
+    shifted = Measurements(**{**meas.__dict__, "X": meas.X + [0.0, 0.0, 0.01]})
+    with pytest.raises(ValueError, match="outside the model mesh"):
+        Objective(other, "elastic", shifted)
+
+
+class TwoBasins:
+    """An analytic misfit over the SR law's parameters with two minima in tau_g1: with
+    x = log10(tau_g1) + 1, Phi = (x^2 - 1)^2 + 0.1 (x - 1)^2 + sum of squared log errors of
+    the other parameters; the global minimum at tau_g1 = 1 s (Phi = 0), a local one near
+    tau_g1 = 0.01 s (Phi ~ 0.4)."""
+    law, fixed, M = "SR", {}, 1
+    n_residuals = 6
+    truth = dict(C1=200.0, C2=5000.0, D1=1.5e-3, g1=0.5, tau_g1=1.0)
+
+    def __call__(self, params):
+        from liverinv.identify.objective import Evaluation
+        x = np.log10(params["tau_g1"]) + 1
+        r = [x * x - 1, np.sqrt(0.1) * (x - 1)] + [np.log10(params[k] / self.truth[k]) for k in ("C1", "C2", "D1")]
+        r.append(params["g1"] - 0.5)
+        r = np.array(r)
+        return Evaluation(dict(params), True, float(r @ r), float(r @ r), 0.0, residual=r)
+
+
+def test_multistart_leaves_a_local_minimum_that_least_squares_keeps():
+    obj = TwoBasins()
+    start = dict(C1=150.0, C2=4000.0, D1=1e-3, g1=0.3, tau_g1=3e-3)
+    local = Fit(obj, start).least_squares()
+    assert 0.01 < local["params"]["tau_g1"] < 0.013  # the local basin (x = -0.95)
+    assert local["best"]["phi"] > 0.3
+    fit = Fit(obj, start)
+    out = fit.multistart(n_design=8, n_polish=2)
+    for k, v in obj.truth.items():
+        assert out["best"]["params"][k] == pytest.approx(v, rel=1e-6), k
+    assert out["best"]["phi"] < 1e-12
+    assert sum(r["purpose"] == "design" for r in fit.history) == 8
+    assert len(out["runs"]) == 3
+    # the design does not depend on the start, and lies in the search ranges
+    other = Fit(obj, dict(C1=500.0, C2=100.0, D1=1e-2, g1=0.9, tau_g1=5.0))
+    pts = fit.design(8)
+    assert np.array_equal(pts, other.design(8))
+    p = np.array([list(fit.params_of(x).values()) for x in pts])
+    assert np.all(p[:, 4] >= 1e-2 - 1e-12) and np.all(p[:, 4] <= 10 + 1e-9)
+    assert np.all(p[:, 3] >= 0.05) and np.all(p[:, 3] <= 0.95)
+
+
+@pytest.mark.slow
+def test_multistart_escapes_a_relaxation_time_below_the_frame_interval(tmp_path_factory):
+    """(slow: about 150 solves.) SR data with tau_g1 = 0.4 s sampled every 0.5 s. From tau_g1 = 1e-3 s the response is
+    relaxed within every step: the gradient in tau_g1 vanishes and least squares stays there.
+    The design stage finds the basin of the truth; the design is the same from any start."""
+    from liverinv.meshgen import generate_indentation_mesh
+    path = generate_indentation_mesh(tmp_path_factory.mktemp("mesh") / "tiny.msh", h_far=0.03, h_rim=0.004)
+    fm = ForwardModel(path)
+    truth = dict(C1=200.0, C2=5000.0, g1=0.5, tau_g1=0.4)
+    run = fm.run("SR", {**truth, "D1": 1.5e-3}, ramp_history(3e-3, 2e-3, frames=7, unload=True))
+    obj = Objective(fm, "SR", Measurements.from_run(run), fixed=dict(D1=1.5e-3))
+    start = dict(C1=150.0, C2=4000.0, g1=0.3, tau_g1=1e-3)
+    local = Fit(obj, start).least_squares(max_evaluations=40)
+    assert local["params"]["tau_g1"] < 0.05  # stuck on the plateau
+    fit = Fit(obj, start)
+    out = fit.multistart(n_design=8, n_polish=1, max_evaluations=40)
+    # measured (13 min under load): Phi 1.9e-7 -> 3.7e-11
+    assert out["best"]["phi"] < 1e-3 * local["best"]["phi"]
+    for k, v in truth.items():
+        assert out["best"]["params"][k] == pytest.approx(v, rel=2e-2), k
+    assert sum(r["purpose"] == "design" for r in fit.history) == 8
+    assert np.array_equal(fit.design(8), Fit(obj, dict(C1=500.0, C2=100.0, g1=0.9, tau_g1=5.0)).design(8))
