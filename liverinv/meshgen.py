@@ -296,7 +296,7 @@ def summarize_mesh(path):
 
 
 def main(argv=None):
-    """``python -m liverinv.meshgen OUT.msh [--preset coarse|fine] [--R ...]``."""
+    """``python -m liverinv.meshgen OUT.msh [--preset coarse|medium|fine] [--R ...]``."""
     p = argparse.ArgumentParser(description="Generate the indentation cylinder tet10 mesh.")
     p.add_argument("out", type=Path)
     p.add_argument("--preset", choices=sorted(PRESETS), default="coarse")

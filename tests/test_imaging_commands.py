@@ -114,6 +114,21 @@ def test_fit_writes_a_complete_fit_file_and_its_convergence_figure(tmp_path, syn
     with pytest.raises(UserError, match="nope"):
         a.func(a)
     assert not (tmp_path / "x.nc").exists()
+    # the model on another mesh: velocities at the tracked nodes; a flow/mesh mismatch refused
+    from liverinv.meshgen import generate_indentation_mesh
+    other = generate_indentation_mesh(tmp_path / "other.msh", h_far=0.03, h_rim=0.004)
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(flow), "--mesh", str(other),
+                      "--law", "elastic", "--out", str(tmp_path / "x.nc")])
+    with pytest.raises(UserError, match="was it tracked on this mesh"):
+        a.func(a)
+    out2 = tmp_path / "fit2.nc"
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(flow), "--mesh", str(MESH),
+                      "--model-mesh", str(other), "--law", "elastic", "--start", "C1=150",
+                      "--fixed", "D1=1.5e-3", "--fixed", "C2=5000", "--max-evaluations", "2", "--out", str(out2)])
+    assert a.func(a) == 0
+    ds2 = xr.load_dataset(out2)
+    assert ds2.v_fem.shape == (2, 1490, 3) and ds2.attrs["model_mesh"] == str(other)
+    assert float((ds2.residual ** 2).sum()) == pytest.approx(float(ds2.phi), rel=1e-9)
 
 
 def test_simulated_truth_has_an_equilibrium_state_at_every_frame(tmp_path):
