@@ -14,7 +14,7 @@ Finished fits are read back; an interrupted fit resumes from its checkpoint.
 
     python benchmarks/validate_tables.py --out results/validation [--methods least-squares]
         [--laws PE SR] [--seeds 1 3] [--max-evaluations N] [--model-mesh medium]
-        [--design-points 16]
+        [--design-points 16 --polish 1]
 
 `--model-mesh` runs the forward model on another mesh than the coarse tracking mesh (a path,
 or a `liverinv.meshgen` preset name generated into OUT); `--design-points N` adds the
@@ -62,6 +62,7 @@ def main(argv=None):
     ap.add_argument("--model-mesh", default=None,
                     help="forward-model mesh: a path or a liverinv.meshgen preset (e.g. medium)")
     ap.add_argument("--design-points", type=int, default=0, help="least squares: multi-start design points")
+    ap.add_argument("--polish", type=int, default=2, help="least squares: design points polished")
     args = ap.parse_args(argv)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -94,7 +95,7 @@ def main(argv=None):
                 if model_mesh:
                     tag += f"_{Path(model_mesh).stem}"
                 if args.design_points and method == "least-squares":
-                    tag += f"_ds{args.design_points}"
+                    tag += f"_ds{args.design_points}p{args.polish}"
                 fit = out / f"fit_{tag}_seed{i}.nc"
                 cmd = ["liverinv", "fit", "--bundle", bundle, "--flow", flow, "--mesh", COARSE,
                        "--law", law, "--method", method, "--checkpoint", out / f"ckpt_{tag}_{i}",
@@ -104,7 +105,7 @@ def main(argv=None):
                 if model_mesh:
                     cmd += ["--model-mesh", model_mesh]
                 if args.design_points and method == "least-squares":
-                    cmd += ["--design-points", args.design_points]
+                    cmd += ["--design-points", args.design_points, "--polish", args.polish]
                 if not fit.exists():
                     print(f"{fit.name}: {sh(*cmd):.0f} s wall", flush=True)
                 with xr.open_dataset(fit, engine="h5netcdf") as ds:
