@@ -63,6 +63,8 @@ def main(argv=None):
                     help="forward-model mesh: a path or a liverinv.meshgen preset (e.g. medium)")
     ap.add_argument("--design-points", type=int, default=0, help="least squares: multi-start design points")
     ap.add_argument("--polish", type=int, default=2, help="least squares: design points polished")
+    ap.add_argument("--probe-evaluations", type=int, default=10,
+                    help="least squares multi-start: residual evaluations of each run before the best is continued")
     args = ap.parse_args(argv)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -95,7 +97,7 @@ def main(argv=None):
                 if model_mesh:
                     tag += f"_{Path(model_mesh).stem}"
                 if args.design_points and method == "least-squares":
-                    tag += f"_ds{args.design_points}p{args.polish}"
+                    tag += f"_ds{args.design_points}p{args.polish}e{args.probe_evaluations}"
                 fit = out / f"fit_{tag}_seed{i}.nc"
                 cmd = ["liverinv", "fit", "--bundle", bundle, "--flow", flow, "--mesh", COARSE,
                        "--law", law, "--method", method, "--checkpoint", out / f"ckpt_{tag}_{i}",
@@ -105,7 +107,8 @@ def main(argv=None):
                 if model_mesh:
                     cmd += ["--model-mesh", model_mesh]
                 if args.design_points and method == "least-squares":
-                    cmd += ["--design-points", args.design_points, "--polish", args.polish]
+                    cmd += ["--design-points", args.design_points, "--polish", args.polish,
+                            "--probe-evaluations", args.probe_evaluations]
                 if not fit.exists():
                     print(f"{fit.name}: {sh(*cmd):.0f} s wall", flush=True)
                 with xr.open_dataset(fit, engine="h5netcdf") as ds:

@@ -27,6 +27,8 @@ def register(sub):
                         "over the parameters' search ranges and run least squares from the best "
                         "--polish of them (for laws with several minima, e.g. SR)")
     p.add_argument("--polish", type=int, default=2, help="design points polished by least squares")
+    p.add_argument("--probe-evaluations", type=int, default=10,
+                   help="residual evaluations of each least-squares run before the best is continued")
     p.add_argument("--checkpoint", help="folder for the evaluation log; an interrupted fit resumes from it")
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
     p.add_argument("--out", required=True, help="fit file (netCDF)")
@@ -80,7 +82,8 @@ def run(args) -> int:
         result = fit.nelder_mead(max_evaluations=args.max_evaluations or 400)
         jac = None
     elif args.design_points > 0:
-        result = fit.multistart(args.design_points, args.polish, max_evaluations=args.max_evaluations or 100)
+        result = fit.multistart(args.design_points, args.polish, max_evaluations=args.max_evaluations or 100,
+                                probe_evaluations=args.probe_evaluations)
         jac = result.get("jacobian")
     else:
         result = fit.least_squares(max_evaluations=args.max_evaluations or 100)

@@ -198,24 +198,30 @@ class Fit:
         u = qmc.Sobol(len(self.names), scramble=True, seed=seed).random(n_points)
         return lo + u * (hi - lo)
 
-    def multistart(self, n_design=16, n_polish=2, max_evaluations=200, fd_step=1e-3, trust_radius=0.3,
-                   seed=0):
-        """Least squares from the start, then a global stage for laws with several minima
-        (e.g. a relaxation time below the frame interval or a nearly incompressible valley,
-        where the gradient vanishes): Phi at the `n_design` points of `design` (one solve
-        each), least squares from the `n_polish` best of them; the result is the lowest Phi of
-        all solves. Every solve is recorded in the history."""
-        runs = [self.least_squares(max_evaluations, fd_step, trust_radius)]
+    def multistart(self, n_design=16, n_polish=2, max_evaluations=200, probe_evaluations=10, fd_step=1e-3,
+                   trust_radius=0.3, seed=0):
+        """A global stage for laws with several minima (e.g. a relaxation time below the frame
+        interval or a nearly incompressible valley, where the gradient vanishes):
+
+        1. least squares from the start, at most `probe_evaluations` residual evaluations;
+        2. Phi at the `n_design` points of `design` (one solve each), and least squares from
+           the `n_polish` best of them, at most `probe_evaluations` each;
+        3. least squares to convergence (`max_evaluations`) from the lowest Phi of those runs.
+
+        Every solve is recorded in the history; the fit's result is the lowest Phi of all."""
+        probe = min(probe_evaluations, max_evaluations)
+        runs = [self.least_squares(probe, fd_step, trust_radius)]
         pts = self.design(n_design, seed)
         phis = np.array([self.evaluate(x, "design")["phi"] for x in pts])
         for k in np.argsort(phis, kind="stable")[:n_polish]:
-            runs.append(self.least_squares(max_evaluations, fd_step, trust_radius, x0=pts[k]))
+            runs.append(self.least_squares(probe, fd_step, trust_radius, x0=pts[k]))
         best_run = min(runs, key=lambda r: self.evaluate(r["x_end"], "least-squares")["phi"])
-        out = self._result(best_run["x_end"], "least-squares multistart",
-                           f"{len(runs)} least-squares runs (start + {n_polish} of {n_design} design points); "
-                           f"best run: {best_run['message']}")
-        out["jacobian"] = best_run["jacobian"]
-        out["runs"] = [dict(x_end=r["x_end"], message=r["message"]) for r in runs]
+        final = self.least_squares(max_evaluations, fd_step, trust_radius, x0=best_run["x_end"])
+        out = self._result(final["x_end"], "least-squares multistart",
+                           f"least squares from the start and {n_polish} of {n_design} design points "
+                           f"({probe} residual evaluations each), continued from the best: {final['message']}")
+        out["jacobian"] = final["jacobian"]
+        out["runs"] = [dict(x_end=r["x_end"], message=r["message"]) for r in runs + [final]]
         return out
 
     def _result(self, x, method, message):
