@@ -23,9 +23,9 @@ def register(sub):
     p.add_argument("--max-evaluations", type=int, default=None,
                    help="Nelder-Mead: forward solves; least squares: residual evaluations per run")
     p.add_argument("--design-points", type=int, default=0, metavar="N",
-                   help="least squares: after the run from the start, screen N points of a Sobol design "
-                        "over the parameters' search ranges and run least squares from the best "
-                        "--polish of them (for laws with several minima, e.g. SR)")
+                   help="least squares with a global stage (laws with several minima, e.g. SR): short "
+                        "runs from the start and from the --polish best of N Sobol design points over the "
+                        "parameters' search ranges, then the best run continued to convergence")
     p.add_argument("--polish", type=int, default=2, help="design points polished by least squares")
     p.add_argument("--probe-evaluations", type=int, default=10,
                    help="residual evaluations of each least-squares run before the best is continued")
