@@ -47,7 +47,7 @@ def main(argv=None):
     from liverinv.identify.objective import Measurements, Objective
     from liverinv.identify.optimize import Fit
     from liverinv.imaging.bundle import open_bundle
-    from liverinv.meshgen import PRESETS, generate_indentation_mesh
+    from validate_tables import model_mesh_path
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--flow", type=Path, required=True, help="flow file (tracked, or validate_tables --exact-motion)")
@@ -57,11 +57,7 @@ def main(argv=None):
     ap.add_argument("--truth", nargs="+", default=[f"{k}={v}" for k, v in TRUTH.items()], metavar="NAME=VALUE")
     args = ap.parse_args(argv)
     truth = {k: float(v) for k, v in (s.split("=") for s in args.truth)}
-    mesh = args.model_mesh
-    if not Path(mesh).exists():
-        if mesh not in PRESETS:
-            ap.error(f"--model-mesh {mesh}: neither a file nor a preset ({', '.join(PRESETS)})")
-        mesh = generate_indentation_mesh(Path(args.flow).parent / f"model_{mesh}.msh", **PRESETS[mesh])
+    mesh = model_mesh_path(args.model_mesh, Path(args.flow).parent)
     with open_bundle(args.bundle) as b:
         ind = b.indenter
         t_ind, depth, force = ind.time_s, ind.displacement_m, ind.force_N

@@ -68,15 +68,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
-    model_mesh = args.model_mesh
-    if model_mesh and not Path(model_mesh).exists():
-        from liverinv.meshgen import PRESETS, generate_indentation_mesh
-        if model_mesh not in PRESETS:
-            ap.error(f"--model-mesh {model_mesh}: neither a file nor a preset ({', '.join(PRESETS)})")
-        path = out / f"model_{model_mesh}.msh"
-        if not path.exists():
-            generate_indentation_mesh(path, **PRESETS[model_mesh])
-        model_mesh = path
+    model_mesh = model_mesh_path(args.model_mesh, out) if args.model_mesh else None
     bundle, truth, flow = out / "bundle.h5", out / "truth.nc", out / "flow.nc"
     if not bundle.exists():
         print(f"synthesize: {sh('liverinv', 'synthesize', ROOT / 'config/studies/table1_truth.yaml', '--out', bundle, '--truth-out', truth):.0f} s")
@@ -129,6 +121,19 @@ def main(argv=None):
 
 
 TRUTH = dict(C1=200.0, C2=5000.0, D1=1.5e-3, kappa=1e-7)
+
+
+def model_mesh_path(name, folder):
+    """A mesh file, or a `liverinv.meshgen` preset generated once into folder/model_<name>.msh."""
+    from liverinv.meshgen import PRESETS, generate_indentation_mesh
+    if Path(name).exists():
+        return Path(name)
+    if name not in PRESETS:
+        raise SystemExit(f"--model-mesh {name}: neither a file nor a preset ({', '.join(PRESETS)})")
+    path = Path(folder) / f"model_{name}.msh"
+    if not path.exists():
+        generate_indentation_mesh(path, **PRESETS[name])
+    return path
 
 
 def exact_flow(truth, flow, out):

@@ -128,8 +128,8 @@ class Objective:
 
     @staticmethod
     def _interpolation(mesh, data, outside_tol):
-        """None when the tracked nodes are the model mesh's nodes, else the sparse matrix
-        that interpolates the model's nodal field at them."""
+        """None when the tracked nodes are the model mesh's nodes, else the `Probe` that
+        interpolates the model's nodal field at them."""
         P = mesh.points
         N = data.u_of.shape[1]
         if data.X is None:
@@ -155,15 +155,11 @@ class Objective:
                              "same specimen geometry?")
         log.info("model mesh: %d nodes; tracked nodes interpolated, %d outside it by at most %.2g m",
                  len(P), int((probe.outside > 0).sum()), float((probe.outside * h).max()))
-        return probe.matrix
+        return probe
 
     def at_data_nodes(self, u):
         """Model nodal field (..., n_model, 3) at the tracked nodes (..., N, 3)."""
-        if self.to_data is None:
-            return u
-        f = np.moveaxis(u, -2, 0)
-        out = self.to_data @ f.reshape(f.shape[0], -1)
-        return np.moveaxis(out.reshape((-1,) + f.shape[1:]), 0, -2)
+        return u if self.to_data is None else self.to_data(u)
 
     def model_motion(self, t, u):
         """Frame-pair nodal velocities (K, N, 3) of a model history u(t)."""
