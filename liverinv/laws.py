@@ -26,7 +26,7 @@ class Param:
     upper: float
     scale: str  # "log": optimized in log space; "linear": bounded fraction
     description: str
-    search: tuple = (None, None)  # range of the multi-start design (soft tissue, this test)
+    search: tuple  # (low, high): range of the multi-start design (soft tissue, this test)
 
 
 PARAMS = {p.name: p for p in [

@@ -81,12 +81,11 @@ def run(args) -> int:
     if args.method == "nelder-mead":
         result = fit.nelder_mead(max_evaluations=args.max_evaluations or 400)
         jac = None
-    elif args.design_points > 0:
-        result = fit.multistart(args.design_points, args.polish, max_evaluations=args.max_evaluations or 100,
-                                probe_evaluations=args.probe_evaluations)
-        jac = result.get("jacobian")
     else:
-        result = fit.least_squares(max_evaluations=args.max_evaluations or 100)
+        n_max = args.max_evaluations or 100
+        result = (fit.multistart(args.design_points, args.polish, max_evaluations=n_max,
+                                 probe_evaluations=args.probe_evaluations)
+                  if args.design_points > 0 else fit.least_squares(max_evaluations=n_max))
         jac = result.get("jacobian")
     bar.close()
     ds = fit_dataset(fit, result, jac, attrs=dict(bundle=str(args.bundle), flow=str(args.flow),

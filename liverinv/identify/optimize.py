@@ -190,10 +190,7 @@ class Fit:
         depend on the start, so fits from different starts screen the same points."""
         from scipy.stats import qmc
 
-        lo = np.array([PARAMS[n].search[0] if PARAMS[n].search[0] is not None else np.nan for n in self.names], float)
-        hi = np.array([PARAMS[n].search[1] if PARAMS[n].search[1] is not None else np.nan for n in self.names], float)
-        lo = np.where(np.isnan(lo), self.to_p(self.lo), lo)
-        hi = np.where(np.isnan(hi), self.to_p(self.hi), hi)
+        lo, hi = np.array([PARAMS[n].search for n in self.names], float).T
         lo, hi = np.maximum(self.to_x(lo), self.lo), np.minimum(self.to_x(hi), self.hi)
         u = qmc.Sobol(len(self.names), scramble=True, seed=seed).random(n_points)
         return lo + u * (hi - lo)
