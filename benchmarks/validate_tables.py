@@ -65,6 +65,8 @@ def main(argv=None):
     ap.add_argument("--polish", type=int, default=2, help="least squares: design points polished")
     ap.add_argument("--probe-evaluations", type=int, default=10,
                     help="least squares multi-start: residual evaluations of each run before the best is continued")
+    ap.add_argument("--jacobian", choices=["broyden", "fd"], default="broyden",
+                    help="least squares: Broyden-updated (default) or finite-difference Jacobian at every step")
     args = ap.parse_args(argv)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -90,10 +92,14 @@ def main(argv=None):
                     tag += f"_{Path(model_mesh).stem}"
                 if args.design_points and method == "least-squares":
                     tag += f"_ds{args.design_points}p{args.polish}e{args.probe_evaluations}"
+                if method == "least-squares" and args.jacobian == "fd":
+                    tag += "_fd"
                 fit = out / f"fit_{tag}_seed{i}.nc"
                 cmd = ["liverinv", "fit", "--bundle", bundle, "--flow", flow, "--mesh", COARSE,
                        "--law", law, "--method", method, "--checkpoint", out / f"ckpt_{tag}_{i}",
                        "--out", fit] + [f"--start={k}={v}" for k, v in seed.items()]
+                if method == "least-squares":
+                    cmd += ["--jacobian", args.jacobian]
                 if args.max_evaluations:
                     cmd += ["--max-evaluations", args.max_evaluations]
                 if model_mesh:

@@ -29,6 +29,9 @@ def register(sub):
     p.add_argument("--polish", type=int, default=2, help="design points polished by least squares")
     p.add_argument("--probe-evaluations", type=int, default=10,
                    help="residual evaluations of each least-squares run before the best is continued")
+    p.add_argument("--jacobian", choices=["broyden", "fd"], default="broyden",
+                   help="least squares: finite differences at the first point then Broyden secant "
+                        "updates (one solve per step; default), or finite differences at every step")
     p.add_argument("--checkpoint", help="folder for the evaluation log; an interrupted fit resumes from it")
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
     p.add_argument("--out", required=True, help="fit file (netCDF)")
@@ -84,8 +87,8 @@ def run(args) -> int:
     else:
         n_max = args.max_evaluations or 100
         result = (fit.multistart(args.design_points, args.polish, max_evaluations=n_max,
-                                 probe_evaluations=args.probe_evaluations)
-                  if args.design_points > 0 else fit.least_squares(max_evaluations=n_max))
+                                 probe_evaluations=args.probe_evaluations, jacobian=args.jacobian)
+                  if args.design_points > 0 else fit.least_squares(max_evaluations=n_max, jacobian=args.jacobian))
         jac = result.get("jacobian")
     bar.close()
     ds = fit_dataset(fit, result, jac, attrs=dict(bundle=str(args.bundle), flow=str(args.flow),

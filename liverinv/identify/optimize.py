@@ -117,10 +117,14 @@ class Fit:
         return rec
 
     def residual(self, x, purpose="step"):
+        """Residual vector at normalized x (a failed solve: the uniform penalty vector)."""
+        return self._residual_ok(x, purpose)[1]
+
+    def _residual_ok(self, x, purpose):
         rec = self.evaluate(x, purpose)
         if rec["ok"] and rec["residual"] is not None:
-            return rec["residual"]
-        return np.full(self.obj.n_residuals, np.sqrt(FAILED_PHI / self.obj.n_residuals))
+            return True, rec["residual"]
+        return False, np.full(self.obj.n_residuals, np.sqrt(FAILED_PHI / self.obj.n_residuals))
 
     def fd_jacobian(self, x, fd_step=1e-3, purpose="step", fd_purpose="fd-jacobian"):
         """Forward-difference Jacobian of the residual vector at normalized x (one recorded
@@ -155,34 +159,99 @@ class Fit:
                                              initial_simplex=np.array(sim)))
         return self._result(res.x, "nelder-mead", res.message)
 
-    def least_squares(self, max_evaluations=200, fd_step=1e-3, trust_radius=0.3, x0=None):
+    def least_squares(self, max_evaluations=200, fd_step=1e-3, trust_radius=0.3, x0=None,
+                      jacobian="broyden", recheck_tol=1e-4, recheck=True):
         """Bounded trust-region least squares (scipy "dogbox": a box-shaped trust region
-        intersected with the bounds) on the residual vector, with a forward finite-difference
-        Jacobian (one solve per parameter, all recorded), from the start or from normalized x0.
+        intersected with the bounds) on the residual vector, from the start or from
+        normalized x0.
 
         The optimizer works in z = (x - x0) / trust_radius, so its first trust region is
         `trust_radius` normalized units (decades for log parameters) in every direction
         around the start. (scipy's default first radius is |x0|, about ten decades here, and
         its "trf" method rescales steps by the distance to the bounds: from Table 1 seed 1
         the first step jumped to C2 1489, kappa 5e-10, far from where the linear model
-        holds.) `max_evaluations` bounds scipy's residual evaluations (each accepted step
-        adds a Jacobian of one solve per parameter)."""
-        x0 = self.to_x(list(self.start.values())) if x0 is None else np.clip(np.asarray(x0, float), self.lo, self.hi)
+        holds.)
+
+        Jacobian. ``"fd"``: forward differences at every accepted point (one solve per
+        parameter, all recorded). ``"broyden"`` (default): forward differences at the first
+        point only; after that every solve the optimizer asks for, accepted or not, updates
+        the Jacobian by Broyden's rank-one secant formula against the current iterate, so a
+        step costs one solve instead of 1 + n. The finite differences are taken again where
+        the updated Jacobian predicted a step's reduction badly (actual < 1/4 of predicted),
+        and at the end: if the Gauss-Newton step of the fresh Jacobian still promises more
+        than `recheck_tol` of Phi, the run continues from there. The final Jacobian (used for
+        the covariance) is therefore always a finite-difference one (``recheck=False`` skips
+        this for short runs whose end may be discarded: the Jacobian returned is then None).
+
+        `max_evaluations` bounds the optimizer's residual evaluations over all continuations;
+        the finite-difference solves come on top and are recorded as "fd-jacobian"."""
+        if jacobian not in ("fd", "broyden"):
+            raise ValueError(f"jacobian must be 'fd' or 'broyden', not {jacobian!r}")
+        x_start = self.to_x(list(self.start.values())) if x0 is None else np.clip(np.asarray(x0, float), self.lo, self.hi)
         s = float(trust_radius)
+        budget, J_start, message = int(max_evaluations), None, ""
+        while True:
+            x_end, J_end, fresh, nfev, message = self._trust_region(x_start, J_start, budget, s, fd_step, jacobian)
+            budget -= nfev
+            if not fresh and not recheck:
+                J_end = None
+            elif not fresh:
+                J_end, r_end = self.fd_jacobian(x_end, fd_step, "least-squares", "fd-jacobian")
+                gain = self._gauss_newton_gain(x_end, J_end, r_end, s)
+                moved = not np.array_equal(x_end, x_start) or J_start is None
+                if gain > recheck_tol * (r_end @ r_end) and budget > 0 and moved:
+                    log.info("least squares: the fresh Jacobian promises %.2g of Phi: continuing", gain)
+                    x_start, J_start = x_end, J_end
+                    continue
+            break
+        out = self._result(x_end, "least-squares", message)
+        out["jacobian"] = J_end
+        out["x_end"] = x_end
+        return out
+
+    def _gauss_newton_gain(self, x, J, r, s):
+        """Reduction of |r|^2 the linear model J promises within a trust region s around x."""
+        lo, hi = np.maximum(self.lo - x, -s), np.minimum(self.hi - x, s)
+        dx = optimize.lsq_linear(J, -r, bounds=(lo, hi)).x
+        return float(r @ r - np.sum((r + J @ dx) ** 2))
+
+    def _trust_region(self, x0, J0, max_nfev, s, fd_step, jacobian):
+        """One scipy dogbox run from x0 (see `least_squares`). Returns (x_end, J, J is a
+        fresh finite-difference Jacobian at x_end, residual evaluations, message)."""
         lo, hi = (self.lo - x0) / s, (self.hi - x0) / s
+        st = dict(J=J0, x=None, r=None, fresh=J0 is not None, pred=None, nfev=0)
 
         def fun(z):
-            return self.residual(x0 + s * z, "least-squares")
+            x = x0 + s * z
+            ok, r = self._residual_ok(x, "least-squares")
+            st["nfev"] += 1
+            if jacobian == "broyden" and st["x"] is not None and ok:
+                dx = x - st["x"]
+                if dx @ dx > 0:
+                    J, rb = st["J"], st["r"]
+                    # predicted (by the Jacobian the optimizer stepped with) and actual
+                    # reduction of the latest trial step
+                    st["pred"] = (float(rb @ rb - np.sum((rb + st["J_step"] @ dx) ** 2)), float(rb @ rb - r @ r))
+                    st["J"] = J + np.outer(r - rb - J @ dx, dx) / (dx @ dx)
+                    st["fresh"] = False
+            return r
 
         def jac(z):
-            return self.fd_jacobian(x0 + s * z, fd_step, "least-squares", "fd-jacobian")[0] * s
+            x = x0 + s * z
+            poor = st["pred"] is not None and st["pred"][1] < 0.25 * st["pred"][0]
+            if jacobian == "fd" or st["J"] is None or poor:
+                st["J"], st["r"] = self.fd_jacobian(x, fd_step, "least-squares", "fd-jacobian")
+                st["fresh"] = True
+            else:
+                st["r"] = self._residual_ok(x, "least-squares")[1]
+            st["x"], st["pred"], st["J_step"] = x, None, st["J"].copy()
+            return st["J"] * s
 
         res = optimize.least_squares(fun, np.zeros_like(x0), jac=jac, bounds=(lo, hi), method="dogbox",
-                                     max_nfev=max_evaluations, xtol=1e-8, ftol=1e-10, gtol=1e-10)
-        out = self._result(x0 + s * res.x, "least-squares", res.message)
-        out["jacobian"] = res.jac / s
-        out["x_end"] = x0 + s * res.x
-        return out
+                                     max_nfev=max(max_nfev, 1), xtol=1e-8, ftol=1e-10, gtol=1e-10)
+        x_end = x0 + s * res.x
+        fresh = st["fresh"] and st["x"] is not None and np.array_equal(st["x"], x_end)
+        return x_end, st["J"], fresh, st["nfev"], res.message
 
     def design(self, n_points, seed=0):
         """`n_points` normalized points of a scrambled Sobol sequence (fixed seed) over the
@@ -196,7 +265,7 @@ class Fit:
         return lo + u * (hi - lo)
 
     def multistart(self, n_design=16, n_polish=2, max_evaluations=200, probe_evaluations=10, fd_step=1e-3,
-                   trust_radius=0.3, seed=0):
+                   trust_radius=0.3, seed=0, jacobian="broyden"):
         """A global stage for laws with several minima (e.g. a relaxation time below the frame
         interval or a nearly incompressible valley, where the gradient vanishes):
 
@@ -207,13 +276,13 @@ class Fit:
 
         Every solve is recorded in the history; the fit's result is the lowest Phi of all."""
         probe = min(probe_evaluations, max_evaluations)
-        runs = [self.least_squares(probe, fd_step, trust_radius)]
+        runs = [self.least_squares(probe, fd_step, trust_radius, jacobian=jacobian, recheck=False)]
         pts = self.design(n_design, seed)
         phis = np.array([self.evaluate(x, "design")["phi"] for x in pts])
         for k in np.argsort(phis, kind="stable")[:n_polish]:
-            runs.append(self.least_squares(probe, fd_step, trust_radius, x0=pts[k]))
+            runs.append(self.least_squares(probe, fd_step, trust_radius, x0=pts[k], jacobian=jacobian, recheck=False))
         best_run = min(runs, key=lambda r: self.evaluate(r["x_end"], "least-squares")["phi"])
-        final = self.least_squares(max_evaluations, fd_step, trust_radius, x0=best_run["x_end"])
+        final = self.least_squares(max_evaluations, fd_step, trust_radius, x0=best_run["x_end"], jacobian=jacobian)
         out = self._result(final["x_end"], "least-squares multistart",
                            f"least squares from the start and {n_polish} of {n_design} design points "
                            f"({probe} residual evaluations each), continued from the best: {final['message']}")
