@@ -145,3 +145,21 @@ def test_simulated_truth_has_an_equilibrium_state_at_every_frame(tmp_path):
     assert len(t.time) == 4 * 2 + 1 + 3                 # 4 steps per ramp + the 3 frames after t = 0
     with open_bundle(tmp_path / "b.h5") as b:
         np.testing.assert_allclose(b.time_s, frames)
+    # the model seen through the tracker (window averages): recorded, and a flow without its
+    # tracking options refused
+    out3 = tmp_path / "fit3.nc"
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(flow), "--mesh", str(MESH),
+                      "--model-mesh", str(other), "--observation", "tracker", "--law", "elastic",
+                      "--start", "C1=150", "--fixed", "D1=1.5e-3", "--fixed", "C2=5000",
+                      "--max-evaluations", "2", "--out", str(out3)])
+    assert a.func(a) == 0
+    ds3 = xr.load_dataset(out3)
+    assert ds3.attrs["observation"] == "tracker" and ds3.v_fem.shape == (2, 1490, 3)
+    assert float((ds3.residual ** 2).sum()) == pytest.approx(float(ds3.phi), rel=1e-9)
+    f = xr.load_dataset(flow)
+    del f.attrs["options"]
+    f.to_netcdf(tmp_path / "bare.nc", engine="h5netcdf")
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(tmp_path / "bare.nc"), "--mesh", str(MESH),
+                      "--observation", "tracker", "--law", "elastic", "--out", str(tmp_path / "x.nc")])
+    with pytest.raises(UserError, match="tracking options"):
+        a.func(a)

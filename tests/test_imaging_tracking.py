@@ -125,3 +125,41 @@ def test_min_support_window_small_elements():
         out[ms] = (np.sqrt(np.mean(e ** 2)), e.max())
     assert out[R][0] < 0.003 and out[R][1] < 0.01, out
     assert out[R][0] < 0.5 * out[0.0][0], out
+
+
+def test_observation_operator_predicts_the_window_average():
+    """A peaked motion (Gaussian bumps of 3-4 mm width, 0.3 voxel) imaged on a fine mesh and
+    tracked on 8 mm elements: the tracker reports the structure-tensor-weighted window
+    average, not the nodal motion. The linearized tracker (`TrackingObservation`) applied to
+    the model's field predicts it. Measured: 0.0019 voxel RMS against 0.027 at the nodes
+    (whose gain is 0.51)."""
+    from liverinv.imaging.observation import TrackingObservation
+
+    lo, hi = [-12e-3, -12e-3, -3e-3], [12e-3, 12e-3, 21e-3]
+    P, C = box_tet10(lo, hi, 3)
+    Pf, Cf = box_tet10(lo, hi, 8)
+    grid = ImageGrid((40, 40, 64), SPACING, (-9.75e-3, -9.75e-3, -0.9e-3))
+    sc = SpeckleScene(VoxelWeights.build(Pf, Cf, grid), ImagingOptions(mode="warp", seed=3))
+
+    def field(X, a=0.09e-3):
+        r2 = X[:, 0] ** 2 + X[:, 1] ** 2 + (X[:, 2] - 9e-3) ** 2
+        u = np.zeros_like(X)
+        u[:, 2] = -a * np.exp(-r2 / (2 * 3e-3 ** 2))
+        u[:, 0] = 0.3 * a * np.exp(-r2 / (2 * 4e-3 ** 2))
+        return u
+
+    f0, f1 = sc.frame(0 * Pf), sc.frame(field(Pf))
+    opts = TrackOptions(max_iterations=6, tol_vox=1e-4)
+    tr = NodalTracker(VoxelWeights.build(P, C, grid), P, opts)
+    tr.start(f0)
+    v, c = tr.step(f1)
+    O = TrackingObservation.build(f0, grid, P, C, Pf, Cf, opts, (1, 1, 1), "subtet")
+    assert O(np.zeros((2,) + Pf.shape)).shape == (2,) + P.shape
+    m = c.min(1) > 0.1
+    at_nodes = grid.vec_to_vox(field(P))
+    observed = grid.vec_to_vox(O(field(Pf)))
+    assert m.sum() > 50 and np.abs(at_nodes[m]).max() == pytest.approx(0.3, rel=0.01)
+    rms = lambda ref: np.sqrt(np.mean(np.sum((v - ref)[m] ** 2, axis=1)))
+    assert rms(at_nodes) > 0.02
+    assert rms(observed) < 0.004
+    assert rms(observed) < 0.15 * rms(at_nodes)

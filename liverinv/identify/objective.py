@@ -16,6 +16,10 @@ vector r = [sqrt(c/(N K)) (v_OF - v_FEM), (ddot_exp - ddot_model)/sqrt(M)] has |
 The model mesh may differ from the mesh the motion was tracked on (e.g. one refined at the
 punch rim, where the contact stress is singular): the model's displacement is then
 interpolated with its quadratic shape functions at the tracked nodes (`Measurements.X`).
+
+Observation operator (optional, `observation=`): the model's motion is compared as the
+tracker would have reported it, i.e. window-averaged like the tracked motion
+(`imaging.observation.TrackingObservation`), instead of at the nodes.
 """
 
 from __future__ import annotations
@@ -95,16 +99,25 @@ class Objective:
     outside_tol : tracked nodes may lie this far (m) outside the model mesh, where the
         model's field is extrapolated (curved boundaries discretized differently by the two
         meshes); farther is an error
+    observation : optional linear map of the model's nodal field (..., n_model, 3) to what
+        the tracker would report at the tracked nodes (..., N, 3), e.g.
+        `imaging.observation.TrackingObservation`; default: the field at the tracked nodes
     """
 
     def __init__(self, forward: ForwardModel, law: str, data: Measurements, fixed=None,
-                 options: NewtonOptions | None = None, confidence_floor=0.1, outside_tol=2e-3):
+                 options: NewtonOptions | None = None, confidence_floor=0.1, outside_tol=2e-3,
+                 observation=None):
         self.forward, self.law, self.data = forward, law, data
         self.fixed = dict(fixed or {})
         self.options = options or NewtonOptions()
         self.confidence_floor = confidence_floor
         self.K, self.N = data.u_of.shape[:2]
         self.to_data = self._interpolation(forward.mesh, data, outside_tol)
+        if observation is not None:
+            if (observation.N, observation.n_model) != (self.N, forward.mesh.n_nodes):
+                raise ValueError(f"observation maps {observation.n_model} model nodes to {observation.N} "
+                                 f"tracked nodes; the model mesh has {forward.mesh.n_nodes}, the data {self.N}")
+            self.to_data = observation
         dt_f = data.t1 - data.t0
         if np.any(dt_f <= 0):
             raise ValueError("frame pairs need t1 > t0")
@@ -158,7 +171,8 @@ class Objective:
         return probe
 
     def at_data_nodes(self, u):
-        """Model nodal field (..., n_model, 3) at the tracked nodes (..., N, 3)."""
+        """Model nodal field (..., n_model, 3) at the tracked nodes (..., N, 3), through the
+        observation operator if there is one."""
         return u if self.to_data is None else self.to_data(u)
 
     def model_motion(self, t, u):
