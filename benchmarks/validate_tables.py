@@ -14,11 +14,12 @@ Finished fits are read back; an interrupted fit resumes from its checkpoint.
 
     python benchmarks/validate_tables.py --out results/validation [--methods least-squares]
         [--laws PE SR] [--seeds 1 3] [--max-evaluations N] [--model-mesh medium]
-        [--design-points 16 --polish 1]
+        [--design-points 16 --polish 1] [--observation tracker] [--jacobian fd]
 
 `--model-mesh` runs the forward model on another mesh than the coarse tracking mesh (a path,
 or a `liverinv.meshgen` preset name generated into OUT); `--design-points N` adds the
-multi-start stage to least squares (`liverinv fit --design-points`).
+multi-start stage to least squares (`liverinv fit --design-points`); `--observation
+tracker` compares the model through the tracker's windows (`liverinv fit --observation`).
 """
 
 from __future__ import annotations
@@ -67,6 +68,8 @@ def main(argv=None):
                     help="least squares multi-start: residual evaluations of each run before the best is continued")
     ap.add_argument("--jacobian", choices=["broyden", "fd"], default="broyden",
                     help="least squares: Broyden-updated (default) or finite-difference Jacobian at every step")
+    ap.add_argument("--observation", choices=["nodes", "tracker"], default="nodes",
+                    help="compare the model at the tracked nodes (the paper) or through the tracker's windows")
     args = ap.parse_args(argv)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -92,6 +95,8 @@ def main(argv=None):
                     tag += f"_{Path(model_mesh).stem}"
                 if args.design_points and method == "least-squares":
                     tag += f"_ds{args.design_points}p{args.polish}e{args.probe_evaluations}"
+                if args.observation == "tracker":
+                    tag += "_obs"
                 if method == "least-squares" and args.jacobian == "fd":
                     tag += "_fd"
                 fit = out / f"fit_{tag}_seed{i}.nc"
@@ -104,6 +109,8 @@ def main(argv=None):
                     cmd += ["--max-evaluations", args.max_evaluations]
                 if model_mesh:
                     cmd += ["--model-mesh", model_mesh]
+                if args.observation != "nodes":
+                    cmd += ["--observation", args.observation]
                 if args.design_points and method == "least-squares":
                     cmd += ["--design-points", args.design_points, "--polish", args.polish,
                             "--probe-evaluations", args.probe_evaluations]
