@@ -66,8 +66,8 @@ def main(argv=None):
     ap.add_argument("--polish", type=int, default=2, help="least squares: design points polished")
     ap.add_argument("--probe-evaluations", type=int, default=10,
                     help="least squares multi-start: residual evaluations of each run before the best is continued")
-    ap.add_argument("--jacobian", choices=["broyden", "fd"], default="broyden",
-                    help="least squares: Broyden-updated (default) or finite-difference Jacobian at every step")
+    ap.add_argument("--jacobian", choices=["sensitivity", "fd"], default="sensitivity",
+                    help="least squares: Jacobian from the solve's sensitivities (default) or finite differences")
     ap.add_argument("--observation", choices=["nodes", "tracker"], default="nodes",
                     help="compare the model at the tracked nodes (the paper) or through the tracker's windows")
     args = ap.parse_args(argv)

@@ -36,9 +36,9 @@ def register(sub):
     p.add_argument("--polish", type=int, default=2, help="design points polished by least squares")
     p.add_argument("--probe-evaluations", type=int, default=10,
                    help="residual evaluations of each least-squares run before the best is continued")
-    p.add_argument("--jacobian", choices=["broyden", "fd"], default="broyden",
-                   help="least squares: finite differences at the first point then Broyden secant "
-                        "updates (one solve per step; default), or finite differences at every step")
+    p.add_argument("--jacobian", choices=["sensitivity", "fd"], default="sensitivity",
+                   help="least squares: the Jacobian from the forward solve's parameter sensitivities "
+                        "(one solve per evaluation; default) or forward differences (1 + n solves)")
     p.add_argument("--checkpoint", help="folder for the evaluation log; an interrupted fit resumes from it")
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
     p.add_argument("--out", required=True, help="fit file (netCDF)")

@@ -220,6 +220,15 @@ class Biphasic:
         else:
             self.s = float(self._pressure_scale)
 
+    def with_params(self, params: dict) -> "Biphasic":
+        """A copy with other parameters and the same pressure scale (so the same reduced
+        unknowns mean the same pressures), sharing the space and assembler."""
+        import copy
+        new = copy.copy(self)
+        new._pressure_scale = self.s
+        new.set_params(params)
+        return new
+
     def new_state(self) -> BiphasicState:
         return BiphasicState(np.ones(self.space.dV.shape))
 

@@ -103,6 +103,13 @@ class Indentation:
         self._k1, self._tau_k1 = p.get("k1", 0.0), p.get("tau_k1", 1.0)
         self.viscous = bool(np.any(self._g1 > 0) or np.any(self._k1 > 0))
 
+    def with_params(self, params: dict) -> "Indentation":
+        """A copy with other parameters, sharing the space and assembler."""
+        import copy
+        new = copy.copy(self)
+        new.set_params(params)
+        return new
+
     def new_state(self) -> QLVState:
         return QLVState(self.space.dV.shape)
 

@@ -65,6 +65,8 @@ class History:
     state: object = None          # last QLV state
     q: np.ndarray | None = None   # last reduced solution
     linear_solver: object = None  # SparseSolver with the last factorized tangent (if kept)
+    du: np.ndarray | None = None      # (n_frames, k, n_nodes, 3) sensitivities of u, if asked
+    ddepth: np.ndarray | None = None  # (n_frames, k) sensitivities of the punch depth
 
 
 class _Engine:
@@ -76,7 +78,7 @@ class _Engine:
         self.fresh = False      # factorization taken at the current iterate
         self.has_factor = False
         self.pairs = []         # BFGS secant pairs on top of the current factorization
-        self.t_assembly = self.t_factor = self.t_solve = 0.0
+        self.t_assembly = self.t_factor = self.t_solve = self.t_sensitivity = 0.0
         self.n_residual = self.n_tangent = self.n_solve = 0
 
     def evaluate(self, q, dt, state, tangent):
@@ -229,7 +231,7 @@ def _extrapolate(past, t):
 
 
 def solve_history(model: Indentation, times, values, control="displacement",
-                  options: NewtonOptions | None = None, record=None) -> History:
+                  options: NewtonOptions | None = None, record=None, sensitivity=None) -> History:
     """Run the model through a load history.
 
     Parameters
@@ -241,6 +243,8 @@ def solve_history(model: Indentation, times, values, control="displacement",
     control : "displacement" or "force"
     options : NewtonOptions
     record : optional callable(frame, q, evaluation) called at every frame after the first
+    sensitivity : optional `sensitivity.Sensitivity`: the derivatives of u and of the punch
+        depth along its parameter directions at every frame (History.du, History.ddepth)
 
     A model whose equilibrium depends on time beyond the punch (e.g. the registration
     springs of `liverinv.identify.register`) may define `set_time(t)`: it is called with the
@@ -270,6 +274,10 @@ def solve_history(model: Indentation, times, values, control="displacement",
     iters, cuts = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
     p = model.punch_index
     set_time = getattr(model, "set_time", None)
+    if sensitivity is not None:
+        sensitivity.start(model, state)
+        du = np.zeros((n, sensitivity.k, model.space.mesh.n_nodes, 3))
+        ddepth = np.zeros((n, sensitivity.k))
     for k in range(1, n):
         pending = [(times[k - 1], values[k - 1], times[k], values[k], 0)]
         while pending:
@@ -298,22 +306,34 @@ def solve_history(model: Indentation, times, values, control="displacement",
                 cuts[k] += 1
                 continue
             iters[k] += it
-            state = model.commit(state, ev, dt)
+            new_state = model.commit(state, ev, dt)
+            if sensitivity is not None:
+                t_s = _time.perf_counter()
+                sensitivity.step(eng, q_new, ev, dt, state, new_state, control)
+                eng.t_sensitivity += _time.perf_counter() - t_s
+            state = new_state
             q = q_new
             past = (past + [(tb, q)])[-3:]
             last = ev
         u[k] = model.displacement(q)
         depth[k], force[k] = q[p], last.r[p]
+        if sensitivity is not None:
+            du[k] = [model.displacement(sensitivity.S[:, i]) for i in range(sensitivity.k)]
+            ddepth[k] = sensitivity.S[p]
         if record is not None:
             record(k, q, last)
     timing = dict(wall_s=_time.perf_counter() - t_start, assembly_s=eng.t_assembly,
                   factor_s=eng.t_factor, solve_s=eng.t_solve, residuals=eng.n_residual,
                   tangents=eng.n_tangent, factorizations=eng.lin.n_factorizations,
-                  back_substitutions=eng.n_solve, solver=eng.lin.method)
+                  back_substitutions=eng.n_solve, solver=eng.lin.method,
+                  sensitivity_s=eng.t_sensitivity)
     kept = None
     if opts.keep_factorization:
         eng.refactor(q, times[-1] - times[-2], state, control)  # the tangent at the end state
         kept = eng.lin
     else:
         eng.lin.free()
-    return History(times, depth, force, u, iters, cuts, timing, state, q, kept)
+    h = History(times, depth, force, u, iters, cuts, timing, state, q, kept)
+    if sensitivity is not None:
+        h.du, h.ddepth = du, ddepth
+    return h

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..fem.sensitivity import Sensitivity
 from ..fem.solver import ConvergenceError, NewtonOptions, solve_history
 from ..forward import ForwardModel
 
@@ -83,6 +84,7 @@ class Evaluation:
     residual: np.ndarray | None = None
     v_fem: np.ndarray | None = None   # (K, N, 3) model nodal velocities
     iterations: int = 0
+    jacobian: np.ndarray | None = None  # (n_residuals, k) d residual / d direction, if asked
 
 
 class Objective:
@@ -184,13 +186,23 @@ class Objective:
         d = self.data
         return (at(d.t1) - at(d.t0)) / (d.t1 - d.t0)[:, None, None], at
 
-    def __call__(self, params: dict) -> Evaluation:
+    sensitivities = True   # __call__ can give the residual's derivatives (see `directions`)
+
+    def __call__(self, params: dict, directions=None, eps=None) -> Evaluation:
+        """Phi and the residuals at `params`; with `directions` (parameter sets moved by `eps`
+        along each direction from `params`), also the residual's derivatives along them from
+        the solve's sensitivities (`fem.sensitivity`, "secant" solve), `Evaluation.jacobian`."""
         t_start = _time.perf_counter()
         full = {**params, **self.fixed}
         d = self.data
         try:
             model = self.forward.model(self.law, full)
-            h = solve_history(model, self.t_drive, self.f_drive, "force", self.options)
+            sens = None
+            if directions is not None:
+                variants = [model.with_params(self.forward.element_params(self.law, {**p, **self.fixed}))
+                            for p in directions]
+                sens = Sensitivity(variants, eps)
+            h = solve_history(model, self.t_drive, self.f_drive, "force", self.options, sensitivity=sens)
         except (ConvergenceError, FloatingPointError, ValueError) as e:
             return Evaluation(dict(params), False, np.nan, np.nan, np.nan,
                               wall_s=_time.perf_counter() - t_start, message=str(e))
@@ -204,6 +216,13 @@ class Objective:
         U_fem = at(d.t1)[..., 2] - at(d.t0[:1])[..., 2]
         conf = self._confident
         rms_axial = float(np.sqrt(np.mean((self._U_of - U_fem)[conf] ** 2))) if conf.any() else np.nan
+        jac = None
+        if sens is not None:
+            jac = np.empty((self.n_residuals, sens.k))
+            for i in range(sens.k):
+                dv = self.model_motion(self.t_drive, self.at_data_nodes(h.du[:, i]))[0]
+                jac[: r_vol.size, i] = -(self._w_vol * dv).ravel()
+                jac[r_vol.size:, i] = -(np.diff(h.ddepth[:, i]) / np.diff(self.t_drive)) / np.sqrt(self.M)
         return Evaluation(dict(params), True, phi_vol + phi_ind, phi_vol, phi_ind, rms_depth, rms_axial,
                           _time.perf_counter() - t_start, "", np.concatenate([r_vol, r_ind]), v_fem,
-                          int(h.iterations.sum()))
+                          int(h.iterations.sum()), jac)

@@ -55,6 +55,9 @@ class Fit:
         self.progress = progress
         self.ckpt = Path(checkpoint) if checkpoint else None
         self._cache = {}
+        self._n_records = 0
+        self.sens_step = 1e-6      # normalized step of the sensitivity directions
+        self._sensitive = bool(getattr(objective, "sensitivities", False))
         if self.ckpt:
             self.ckpt.mkdir(parents=True, exist_ok=True)
             self._load_checkpoint()
@@ -84,31 +87,52 @@ class Fit:
             rec = json.loads(line)
             res = self.ckpt / f"residual_{rec['n']}.npy"
             rec["residual"] = np.load(res) if res.exists() else None
+            jac = self.ckpt / f"jacobian_{rec['n']}.npy"
+            rec["jacobian"] = np.load(jac) if jac.exists() else None
             self._cache[tuple(rec["key"])] = rec
+            self._n_records = max(self._n_records, rec["n"] + 1)
         log.info("checkpoint %s: %d solves to replay", self.ckpt, len(self._cache))
 
-    def evaluate(self, x, purpose="step") -> dict:
-        """One forward solve at normalized x (or its replay from the checkpoint)."""
+    def evaluate(self, x, purpose="step", jacobian=False) -> dict:
+        """One forward solve at normalized x (or its replay from the checkpoint); with
+        `jacobian`, also the residual's derivatives by x from the solve's sensitivities
+        (`rec["jacobian"]`, None where the objective cannot give them)."""
         x = np.clip(np.asarray(x, float), self.lo, self.hi)
         key = self._key(x)
         self.n_calls += 1
-        if key in self._used:       # asked again (e.g. a Jacobian at the accepted point)
-            return self._cache[key]
-        if key in self._cache:
-            rec = dict(self._cache[key])
+        want = jacobian and self._sensitive
+        cached = self._cache.get(key)
+        stale = cached is not None and want and cached["ok"] and cached.get("jacobian") is None
+        if key in self._used and not stale:   # asked again (e.g. a Jacobian at the accepted point)
+            return cached
+        if cached is not None and not stale:
+            rec = dict(cached)
             rec["replayed"] = True
         else:
-            ev = self.obj(self.params_of(x))
+            steps = None
+            if want:
+                steps = np.where(x + self.sens_step <= self.hi, self.sens_step, -self.sens_step)
+                directions = [self.params_of(x + h * e) for h, e in zip(steps, np.eye(len(x)))]
+                ev = self.obj(self.params_of(x), directions=directions, eps=self.sens_step)
+            else:
+                ev = self.obj(self.params_of(x))
+            n = self._n_records
+            self._n_records += 1
             rec = dict(key=list(key), x=list(map(float, x)), params=ev.params, ok=ev.ok,
                        phi=ev.phi if ev.ok else FAILED_PHI, phi_vol=ev.phi_vol, phi_ind=ev.phi_ind,
                        rms_depth=ev.rms_depth, rms_axial=ev.rms_axial, wall_s=ev.wall_s,
-                       message=ev.message, purpose=purpose, n=len(self._cache), replayed=False)
+                       message=ev.message, purpose=purpose, n=n, replayed=False)
             rec["residual"] = ev.residual
+            J = getattr(ev, "jacobian", None)
+            rec["jacobian"] = None if J is None else J * np.sign(steps)   # columns along +x
             if self.ckpt:
                 if ev.residual is not None:
-                    np.save(self.ckpt / f"residual_{rec['n']}.npy", ev.residual)
+                    np.save(self.ckpt / f"residual_{n}.npy", ev.residual)
+                if rec["jacobian"] is not None:
+                    np.save(self.ckpt / f"jacobian_{n}.npy", rec["jacobian"])
                 with open(self.ckpt / "evaluations.jsonl", "a") as f:
-                    f.write(json.dumps({k: v for k, v in rec.items() if k not in ("residual", "replayed")}) + "\n")
+                    f.write(json.dumps({k: v for k, v in rec.items()
+                                        if k not in ("residual", "jacobian", "replayed")}) + "\n")
             self._cache[key] = rec
         self._used.add(key)
         self.history.append(rec)
@@ -118,13 +142,10 @@ class Fit:
 
     def residual(self, x, purpose="step"):
         """Residual vector at normalized x (a failed solve: the uniform penalty vector)."""
-        return self._residual_ok(x, purpose)[1]
-
-    def _residual_ok(self, x, purpose):
         rec = self.evaluate(x, purpose)
         if rec["ok"] and rec["residual"] is not None:
-            return True, rec["residual"]
-        return False, np.full(self.obj.n_residuals, np.sqrt(FAILED_PHI / self.obj.n_residuals))
+            return rec["residual"]
+        return np.full(self.obj.n_residuals, np.sqrt(FAILED_PHI / self.obj.n_residuals))
 
     def fd_jacobian(self, x, fd_step=1e-3, purpose="step", fd_purpose="fd-jacobian"):
         """Forward-difference Jacobian of the residual vector at normalized x (one recorded
@@ -160,7 +181,7 @@ class Fit:
         return self._result(res.x, "nelder-mead", res.message)
 
     def least_squares(self, max_evaluations=200, fd_step=1e-3, trust_radius=0.3, x0=None,
-                      jacobian="broyden", recheck_tol=1e-4, recheck=True):
+                      jacobian="sensitivity"):
         """Bounded trust-region least squares (scipy "dogbox": a box-shaped trust region
         intersected with the bounds) on the residual vector, from the start or from
         normalized x0.
@@ -172,86 +193,37 @@ class Fit:
         the first step jumped to C2 1489, kappa 5e-10, far from where the linear model
         holds.)
 
-        Jacobian. ``"fd"``: forward differences at every accepted point (one solve per
-        parameter, all recorded). ``"broyden"`` (default): forward differences at the first
-        point only; after that every solve the optimizer asks for, accepted or not, updates
-        the Jacobian by Broyden's rank-one secant formula against the current iterate, so a
-        step costs one solve instead of 1 + n. The finite differences are taken again where
-        the updated Jacobian predicted a step's reduction badly (actual < 1/4 of predicted),
-        and at the end: if the Gauss-Newton step of the fresh Jacobian still promises more
-        than `recheck_tol` of Phi, the run continues from there. The final Jacobian (used for
-        the covariance) is therefore always a finite-difference one (``recheck=False`` skips
-        this for short runs whose end may be discarded: the Jacobian returned is then None).
-
-        `max_evaluations` bounds the optimizer's residual evaluations over all continuations;
-        the finite-difference solves come on top and are recorded as "fd-jacobian"."""
-        if jacobian not in ("fd", "broyden"):
-            raise ValueError(f"jacobian must be 'fd' or 'broyden', not {jacobian!r}")
-        x_start = self.to_x(list(self.start.values())) if x0 is None else np.clip(np.asarray(x0, float), self.lo, self.hi)
+        Jacobian: ``"sensitivity"`` (default) from the forward solve itself (direct
+        differentiation along the normalized parameters, `fem.sensitivity`): every
+        evaluation of the optimizer is one solve that also gives its Jacobian. ``"fd"``, and
+        wherever the objective gives no sensitivities: forward differences at each accepted
+        point, one more recorded solve per parameter ("fd-jacobian").
+        `max_evaluations` bounds scipy's residual evaluations."""
+        if jacobian not in ("sensitivity", "fd"):
+            raise ValueError(f"jacobian must be 'sensitivity' or 'fd', not {jacobian!r}")
+        sens = jacobian == "sensitivity"
+        x0 = self.to_x(list(self.start.values())) if x0 is None else np.clip(np.asarray(x0, float), self.lo, self.hi)
         s = float(trust_radius)
-        budget, J_start, message = int(max_evaluations), None, ""
-        while True:
-            x_end, J_end, fresh, nfev, message = self._trust_region(x_start, J_start, budget, s, fd_step, jacobian)
-            budget -= nfev
-            if not fresh and not recheck:
-                J_end = None
-            elif not fresh:
-                J_end, r_end = self.fd_jacobian(x_end, fd_step, "least-squares", "fd-jacobian")
-                gain = self._gauss_newton_gain(x_end, J_end, r_end, s)
-                moved = not np.array_equal(x_end, x_start) or J_start is None
-                if gain > recheck_tol * (r_end @ r_end) and budget > 0 and moved:
-                    log.info("least squares: the fresh Jacobian promises %.2g of Phi: continuing", gain)
-                    x_start, J_start = x_end, J_end
-                    continue
-            break
-        out = self._result(x_end, "least-squares", message)
-        out["jacobian"] = J_end
-        out["x_end"] = x_end
-        return out
-
-    def _gauss_newton_gain(self, x, J, r, s):
-        """Reduction of |r|^2 the linear model J promises within a trust region s around x."""
-        lo, hi = np.maximum(self.lo - x, -s), np.minimum(self.hi - x, s)
-        dx = optimize.lsq_linear(J, -r, bounds=(lo, hi)).x
-        return float(r @ r - np.sum((r + J @ dx) ** 2))
-
-    def _trust_region(self, x0, J0, max_nfev, s, fd_step, jacobian):
-        """One scipy dogbox run from x0 (see `least_squares`). Returns (x_end, J, J is a
-        fresh finite-difference Jacobian at x_end, residual evaluations, message)."""
         lo, hi = (self.lo - x0) / s, (self.hi - x0) / s
-        st = dict(J=J0, x=None, r=None, fresh=J0 is not None, pred=None, nfev=0)
 
         def fun(z):
             x = x0 + s * z
-            ok, r = self._residual_ok(x, "least-squares")
-            st["nfev"] += 1
-            if jacobian == "broyden" and st["x"] is not None and ok:
-                dx = x - st["x"]
-                if dx @ dx > 0:
-                    J, rb = st["J"], st["r"]
-                    # predicted (by the Jacobian the optimizer stepped with) and actual
-                    # reduction of the latest trial step
-                    st["pred"] = (float(rb @ rb - np.sum((rb + st["J_step"] @ dx) ** 2)), float(rb @ rb - r @ r))
-                    st["J"] = J + np.outer(r - rb - J @ dx, dx) / (dx @ dx)
-                    st["fresh"] = False
-            return r
+            rec = self.evaluate(x, "least-squares", jacobian=sens)
+            return rec["residual"] if rec["ok"] and rec["residual"] is not None else self.residual(x)
 
         def jac(z):
             x = x0 + s * z
-            poor = st["pred"] is not None and st["pred"][1] < 0.25 * st["pred"][0]
-            if jacobian == "fd" or st["J"] is None or poor:
-                st["J"], st["r"] = self.fd_jacobian(x, fd_step, "least-squares", "fd-jacobian")
-                st["fresh"] = True
-            else:
-                st["r"] = self._residual_ok(x, "least-squares")[1]
-            st["x"], st["pred"], st["J_step"] = x, None, st["J"].copy()
-            return st["J"] * s
+            rec = self.evaluate(x, "least-squares", jacobian=sens)
+            if rec.get("jacobian") is not None:
+                return rec["jacobian"] * s
+            return self.fd_jacobian(x, fd_step, "least-squares", "fd-jacobian")[0] * s
 
         res = optimize.least_squares(fun, np.zeros_like(x0), jac=jac, bounds=(lo, hi), method="dogbox",
-                                     max_nfev=max(max_nfev, 1), xtol=1e-8, ftol=1e-10, gtol=1e-10)
-        x_end = x0 + s * res.x
-        fresh = st["fresh"] and st["x"] is not None and np.array_equal(st["x"], x_end)
-        return x_end, st["J"], fresh, st["nfev"], res.message
+                                     max_nfev=max_evaluations, xtol=1e-8, ftol=1e-10, gtol=1e-10)
+        out = self._result(x0 + s * res.x, "least-squares", res.message)
+        out["jacobian"] = res.jac / s
+        out["x_end"] = x0 + s * res.x
+        return out
 
     def design(self, n_points, seed=0):
         """`n_points` normalized points of a scrambled Sobol sequence (fixed seed) over the
@@ -265,7 +237,7 @@ class Fit:
         return lo + u * (hi - lo)
 
     def multistart(self, n_design=16, n_polish=2, max_evaluations=200, probe_evaluations=10, fd_step=1e-3,
-                   trust_radius=0.3, seed=0, jacobian="broyden"):
+                   trust_radius=0.3, seed=0, jacobian="sensitivity"):
         """A global stage for laws with several minima (e.g. a relaxation time below the frame
         interval or a nearly incompressible valley, where the gradient vanishes):
 
@@ -276,11 +248,11 @@ class Fit:
 
         Every solve is recorded in the history; the fit's result is the lowest Phi of all."""
         probe = min(probe_evaluations, max_evaluations)
-        runs = [self.least_squares(probe, fd_step, trust_radius, jacobian=jacobian, recheck=False)]
+        runs = [self.least_squares(probe, fd_step, trust_radius, jacobian=jacobian)]
         pts = self.design(n_design, seed)
         phis = np.array([self.evaluate(x, "design")["phi"] for x in pts])
         for k in np.argsort(phis, kind="stable")[:n_polish]:
-            runs.append(self.least_squares(probe, fd_step, trust_radius, x0=pts[k], jacobian=jacobian, recheck=False))
+            runs.append(self.least_squares(probe, fd_step, trust_radius, x0=pts[k], jacobian=jacobian))
         best_run = min(runs, key=lambda r: self.evaluate(r["x_end"], "least-squares")["phi"])
         final = self.least_squares(max_evaluations, fd_step, trust_radius, x0=best_run["x_end"], jacobian=jacobian)
         out = self._result(final["x_end"], "least-squares multistart",
