@@ -55,3 +55,18 @@ def test_biphasic_variant_keeps_the_pressure_scale(fm):
     m = fm.model("PE", LAWS["PE"])
     v = m.with_params(fm.element_params("PE", {**LAWS["PE"], "C1": 400.0}))
     assert v.s == m.s and float(v._C1.mean()) == 400.0 and v.asm is m.asm
+
+
+@pytest.mark.parametrize("method", ["pardiso", "superlu"])
+def test_block_back_substitution(method):
+    """Several right-hand sides at once (pardiso reads them column-major)."""
+    import scipy.sparse as sp
+    from liverinv.fem.linsolve import SparseSolver, backend
+    if method == "pardiso" and backend() != "pardiso":
+        pytest.skip("pypardiso not installed")
+    A = (sp.random(50, 50, density=0.2, random_state=1) + 10 * sp.eye(50)).tocsr()
+    B = np.random.default_rng(0).normal(size=(50, 4))
+    lin = SparseSolver(method)
+    lin.factorize(A)
+    assert np.abs(A @ lin.solve(B) - B).max() < 1e-12
+    assert np.abs(A @ lin.solve(B[:, 1]) - B[:, 1]).max() < 1e-12

@@ -71,12 +71,13 @@ class SparseSolver:
     def solve(self, b: np.ndarray) -> np.ndarray:
         if self.K is None:
             raise RuntimeError("solve before factorize")
-        b = np.ascontiguousarray(b, dtype=float)
+        b = np.asarray(b, dtype=float)
         if self.method == "superlu":
-            return self._lu.solve(b)
+            return self._lu.solve(np.ascontiguousarray(b) if b.ndim == 1 else np.asfortranarray(b))
         self._ps.set_phase(33)
-        x = self._ps._call_pardiso(self.K, b if b.ndim == 2 else b[:, None])
-        return x.reshape(b.shape)
+        # several right-hand sides: pardiso reads b column-major
+        x = self._ps._call_pardiso(self.K, np.asfortranarray(b if b.ndim == 2 else b[:, None]))
+        return x.reshape(b.shape, order="F")
 
     def free(self):
         if self._ps is not None:

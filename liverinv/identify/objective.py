@@ -191,7 +191,7 @@ class Objective:
     def __call__(self, params: dict, directions=None, eps=None) -> Evaluation:
         """Phi and the residuals at `params`; with `directions` (parameter sets moved by `eps`
         along each direction from `params`), also the residual's derivatives along them from
-        the solve's sensitivities (`fem.sensitivity`, "secant" solve), `Evaluation.jacobian`."""
+        the solve's sensitivities (`fem.sensitivity`), `Evaluation.jacobian`."""
         t_start = _time.perf_counter()
         full = {**params, **self.fixed}
         d = self.data
