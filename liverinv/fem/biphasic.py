@@ -64,7 +64,7 @@ import numpy as np
 
 from .assembly import ReducedAssembler
 from .indentation import Evaluation
-from .material import element_stiffness, hyperelastic_terms
+from .material import _det, element_stiffness, hyperelastic_terms
 from .space import Space
 
 __all__ = ["Biphasic", "BiphasicState", "BiphasicEvaluation", "DRAINED_DEFAULT", "febio8_space"]
@@ -298,6 +298,12 @@ class Biphasic:
     def commit(self, state: BiphasicState, ev: BiphasicEvaluation, dt) -> BiphasicState:
         """History after a converged step: J_n <- J."""
         return BiphasicState(ev.J.copy())
+
+    def state_after(self, state: BiphasicState, q, dt) -> BiphasicState:
+        """The committed history of a step ending at q (`commit` without a residual
+        evaluation: J from the deformation gradient only)."""
+        F = self.space.deformation_gradient(self.displacement(q))
+        return BiphasicState(_det(F))
 
     def fix_punch(self, K):
         """Make the punch depth a prescribed unknown in K (displacement control)."""

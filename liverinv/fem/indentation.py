@@ -157,6 +157,15 @@ class Indentation:
         new.S0_iso, new.S0_vol = ev.S0_iso, ev.S0_vol
         return new
 
+    def state_after(self, state: QLVState, q, dt) -> QLVState:
+        """The committed history of a step ending at q (`commit` without assembling the
+        residual: only the elastic stresses at q are needed)."""
+        if not self.viscous:
+            return state
+        F = self.space.deformation_gradient(self.displacement(q))
+        S_iso, S_vol, _, J = hyperelastic_terms(F, self._C1, self._C2, self._D1, self._D2inv)
+        return self.commit(state, Evaluation(None, None, S_iso, S_vol, float(J.min())), dt)
+
     def fix_punch(self, K):
         """Make the punch depth a prescribed unknown in K (displacement control)."""
         K.data[self.punch_positions] = 0.0

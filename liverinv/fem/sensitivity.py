@@ -91,6 +91,8 @@ class Sensitivity:
         self.dstate = [None] * self.k
 
     def step(self, eng, q, ev, dt, state, new_state, control):
+        # (models may define state_after(state, q, dt), the committed history without a
+        # residual evaluation; otherwise evaluate + commit)
         """Advance the sensitivities over one converged step (q, ev at its end; `state`
         before it, `new_state` after)."""
         from .solver import _lbfgs
@@ -124,5 +126,9 @@ class Sensitivity:
                     s = s + inv(res)
                 self.S[:, i] = s
         for i, (var, st_i) in enumerate(zip(self.variants, states)):
-            ev_i = var.evaluate(q + eps * self.S[:, i], dt, st_i, tangent=False)
-            self.dstate[i] = state_difference(var.commit(st_i, ev_i, dt), new_state, 1.0 / eps)
+            q_i = q + eps * self.S[:, i]
+            if hasattr(var, "state_after"):
+                after = var.state_after(st_i, q_i, dt)
+            else:
+                after = var.commit(st_i, var.evaluate(q_i, dt, st_i, tangent=False), dt)
+            self.dstate[i] = state_difference(after, new_state, 1.0 / eps)
