@@ -98,7 +98,7 @@ def test_fit_writes_a_complete_fit_file_and_its_convergence_figure(tmp_path, syn
     assert list(ds.param.values) == ["C1", "C2"]
     n = ds.sizes["evaluation"]
     assert n == ds.attrs["n_solves"] >= 3               # one solve per evaluation (sensitivities)
-    assert set(ds.history_purpose.values) == {"least-squares"}
+    assert set(ds.history_purpose.values) == {"least-squares"} and ds.attrs["jacobian"] == "sensitivity"
     ok = ds.history_ok.values
     assert float(ds.phi) == pytest.approx(ds.history_phi.values[ok].min(), rel=1e-9)
     assert float(ds.phi) == pytest.approx(float(ds.phi_vol + ds.phi_ind), rel=1e-12)

@@ -117,6 +117,7 @@ def run(args) -> int:
                                                    mesh=str(args.mesh), mesh_sha256=file_sha256(args.mesh),
                                                    model_mesh=str(args.model_mesh or args.mesh),
                                                    observation=args.observation,
+                                                   jacobian=args.jacobian if args.method == "least-squares" else "",
                                                    model_mesh_sha256=file_sha256(args.model_mesh or args.mesh)))
     write_netcdf(ds, args.out)
     best_p = ", ".join(f"{k}={v:.4g}" for k, v in zip(ds.param.values, ds.best.values))
