@@ -177,7 +177,8 @@ def summary_row(law, method, i, seed, ds):
     return dict(law=law, method=method, seed=i, start=seed, best=best, phi=float(ds.phi),
                 phi_vol=float(ds.phi_vol), phi_ind=float(ds.phi_ind), rms_depth=float(ds.rms_depth),
                 rms_axial=float(ds.rms_axial), solves=solves, evaluations=n, wall_s=wall,
-                phi_history=ds.history_phi.values[:solves].copy())
+                phi_history=ds.history_phi.values[:solves].copy(),
+                wall_history=ds.history_wall_s.values[:solves].copy())
 
 
 def tables(rows, fits):
@@ -210,13 +211,16 @@ def tables(rows, fits):
         target = 1.01 * nm[0]["phi"]
         reached = np.nonzero(r["phi_history"] <= target)[0]
         n_ls = int(reached[0]) + 1 if reached.size else None
+        t_ls = f"{r['wall_history'][:n_ls].sum():.0f}" if n_ls else "-"
         cmp.append(f"| {r['law']} | {r['seed']} | {nm[0]['phi']:.4e} | {nm[0]['solves']} | "
                    f"{n_ls if n_ls else 'not reached'} | {r['solves']} | "
-                   + (f"{nm[0]['solves'] / n_ls:.1f}x |" if n_ls else "- |"))
+                   + (f"{nm[0]['solves'] / n_ls:.1f}x |" if n_ls else "- |")
+                   + f" {nm[0]['wall_s']:.0f} | {t_ls} |")
     if cmp:
         lines += ["\n### Least squares vs Nelder-Mead\n",
-                  "| law | seed | NM optimum Phi | NM solves | LS solves to within 1 % of it | LS solves in all | ratio |",
-                  "|---|---|---|---|---|---|---|"] + cmp
+                  "| law | seed | NM optimum Phi | NM solves | LS solves to within 1 % of it | LS solves in all | ratio "
+                  "| NM solve time (s) | LS solve time to within 1 % (s) |",
+                  "|---|---|---|---|---|---|---|---|---|"] + cmp
     return "\n".join(lines) + "\n"
 
 
