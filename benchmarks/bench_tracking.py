@@ -88,7 +88,7 @@ def main():
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/liverinv_bench"))
     ap.add_argument("--truth", type=Path, default=None)
     ap.add_argument("--stride", type=int, nargs=3, default=(2, 2, 1))
-    ap.add_argument("--iterations", type=int, default=2)
+    ap.add_argument("--iterations", type=int, default=8)
     ap.add_argument("--reuse", action="store_true", help="reuse bundles already in --workdir")
     ap.add_argument("--render-only", action="store_true", help="only write the bundles")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "bench_tracking.json")

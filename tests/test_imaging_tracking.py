@@ -163,3 +163,25 @@ def test_observation_operator_predicts_the_window_average():
     assert rms(at_nodes) > 0.02
     assert rms(observed) < 0.004
     assert rms(observed) < 0.15 * rms(at_nodes)
+
+
+def test_default_refinement_follows_a_reversal_without_lag(scene):
+    """Compression growing for three pairs, then reversing. The warm start (the previous
+    pair's motion) is wrong by twice the motion at the reversal; the refinement must remove
+    it, not leave a lag. Measured RMS error (voxels) at the reversal: 1 iteration 0.136,
+    2: 0.067, 4: 0.019, 8 (default): 0.015, the error of the steady pairs."""
+    P, C, grid, vw, sc = scene
+    Xc = P - P.mean(0)
+    step = Xc @ np.diag([0.0, 0.0, -8e-3]) + grid.vec_to_m([0.0, 0.0, -0.3])
+    U = [np.zeros_like(P)]
+    for s in (1, 1, 1, -1, -1):
+        U.append(U[-1] + s * step)
+    frames = [sc.frame(u) for u in U]
+    tr = NodalTracker(vw, P)
+    tr.start(frames[0])
+    errs = []
+    for k in range(1, len(frames)):
+        v, c = tr.step(frames[k])
+        errs.append(_score(v, grid.vec_to_vox(U[k] - U[k - 1]), c)[0])
+    assert max(errs[1:3]) < 0.025                       # steady pairs
+    assert errs[3] < 0.025 and errs[3] < 1.5 * max(errs[1:3]), errs

@@ -16,15 +16,16 @@ def register(subparsers):
     p.add_argument("bundle", type=Path, help="measurement bundle (.h5)")
     p.add_argument("--mesh", type=Path, required=True, help="tracking mesh (gmsh tet10)")
     p.add_argument("--out", type=Path, required=True, help="flow file to write (.nc)")
-    p.add_argument("--iterations", type=int, default=2,
-                   help="warp-and-re-solve iterations of the Appendix's per-node translation (2)")
+    p.add_argument("--iterations", type=int, default=8,
+                   help="warp-and-re-solve iterations of the Appendix's per-node translation (8; "
+                        "fewer leave a lag behind changes of speed)")
     p.add_argument("--interpolated-iterations", type=int, default=0,
                    help="then iterations with the interpolated motion as the model (0; 1 "
                         "halves the error on noise-free warped data, hurts with noise)")
     p.add_argument("--window", choices=["subtet", "element"], default="subtet",
                    help="node neighbourhood weights: sub-tet hats (default) or, for corner "
                         "nodes, the linear shape function of every element around it")
-    p.add_argument("--tol-vox", type=float, default=5e-4,
+    p.add_argument("--tol-vox", type=float, default=1e-5,
                    help="stop refining when the largest correction is below this (voxels)")
     p.add_argument("--stride", type=int, nargs=3, default=(2, 2, 1), metavar=("L", "E", "A"),
                    help="use every n-th voxel along lateral, elevational, axial (2 2 1)")
