@@ -6,7 +6,9 @@ solve's parameter sensitivities, against the forward-difference Jacobian it repl
         --flow results/validation_v2/flow.nc [--law PE] [--model-mesh M] [--observation tracker]
 
 Prints the wall time of each kind of evaluation and the relative difference between the
-sensitivity Jacobian and forward differences (step 1e-4 in normalized parameters).
+sensitivity Jacobian and central differences of plain solves (step 1e-4 in normalized
+parameters). Measured (coarse mesh, PE, 99 steps, quiet machine): plain solve 9.5 s, with 4
+sensitivities 20.7 s (2.2x), forward-difference Jacobian 47 s; agreement 2e-5 to 4e-4.
 """
 
 from __future__ import annotations
@@ -59,12 +61,16 @@ def main(argv=None):
         directions = [fit.params_of(x + fit.sens_step * e) for e in np.eye(n)]
         ev = obj(fit.params_of(x), directions=directions, eps=fit.sens_step)
         sens.append(time.perf_counter() - t0)
-    J_fd = np.column_stack([(obj(fit.params_of(x + 1e-4 * e)).residual - ev.residual) / 1e-4 for e in np.eye(n)])
+    # central differences of plain solves (a residual of the sensitivity solve differs from
+    # the plain one by the solver tolerance along another iteration path, ~2e-4 relative)
+    h = 1e-4
+    J_fd = np.column_stack([(obj(fit.params_of(x + h * e)).residual - obj(fit.params_of(x - h * e)).residual) / (2 * h)
+                            for e in np.eye(n)])
     err = np.linalg.norm(ev.jacobian - J_fd, axis=0) / np.linalg.norm(J_fd, axis=0)
     print(f"{args.law} on {fm.mesh.n_nodes} nodes, {len(obj.t_drive) - 1} steps, observation {args.observation}")
     print(f"plain solve: {min(plain):.1f} s; solve with {n} sensitivities: {min(sens):.1f} s "
           f"({min(sens) / min(plain):.2f}x); forward-difference Jacobian: {(1 + n) * min(plain):.1f} s")
-    print("relative difference to forward differences per parameter: "
+    print("relative difference to central differences per parameter: "
           + ", ".join(f"{k} {e:.1e}" for k, e in zip(fit.names, err)))
 
 
