@@ -13,21 +13,16 @@ which is prescribed, so its right-hand side is the same; displacement control: t
 depth is prescribed, its sensitivity is zero). The right-hand side and the state update are
 *directional finite differences of the model's own residual and commit*, with the parameter,
 the history and the solution stepped together by eps along the direction: one residual
-evaluation each, and no derivative code per law. The tangent system is solved with
+evaluation each, and no derivative code per law. The tangent is factorized at the converged
+state of every step (exact to the finite-difference step) and one block back-substitution
+serves all directions; the factorization then also serves the next step's quasi-Newton
+iterations. (Reusing the solver's older factorization with its BFGS pairs instead, plus two
+correction iterations, was 1-35 % off on the coarse benchmark mesh at the same cost.)
 
-* ``"exact"`` (default): the tangent factorized at the converged state of every step (exact
-  to the finite-difference step), one block back-substitution for all directions; the
-  factorization then also serves the next step's quasi-Newton iterations;
-* ``"secant"``: the solver's current factorization with its limited-memory BFGS pairs, the
-  same approximate inverse the quasi-Newton iterations used, followed by `refine`
-  iterations of ``s += B^-1 (rhs - K s)`` with K s a directional difference of the residual.
-  Cheaper per step but inexact where the factorization is old: on the coarse benchmark
-  mesh (PE, 40 frames) 1-5 % error with 2 corrections, 9-35 % without, at the cost of
-  "exact" with 2 corrections.
-
-Cost per step: "exact" one tangent assembly and numeric factorization, two residual
-evaluations per direction and one block back-substitution; on the coarse benchmark mesh a
-PE solve with four directions takes about 2.4x a plain solve.
+Cost per step: one tangent assembly and numeric factorization, one residual evaluation per
+direction (two for a model without `state_after`) and one block back-substitution. On the Table 1
+data a PE solve with four directions takes 2.34x a plain solve on the coarse and on the
+medium mesh (`benchmarks/sensitivity_cost.py`: 16.8 vs 7.2 s, 51.4 vs 21.9 s).
 
 A parameter direction is given as a copy of the model with its parameters moved by eps
 along it (`with_params`), so the same code serves any parametrization (e.g. the
@@ -73,15 +68,10 @@ class Sensitivity:
     variants : models with the parameters moved by `eps` along each direction (same mesh
         and boundary conditions as the solved model, e.g. `Biphasic.with_params`)
     eps : the step of the variants along their directions
-    solve : "exact" (factorize the tangent at every converged step) or "secant" (reuse the
-        solver's factorization and BFGS pairs, with `refine` corrections)
-    refine : correction iterations of the "secant" solve
     """
 
-    def __init__(self, variants, eps: float, solve: str = "exact", refine: int = 2):
-        if solve not in ("secant", "exact"):
-            raise ValueError(f"solve must be 'secant' or 'exact', not {solve!r}")
-        self.variants, self.eps, self.solve, self.refine = list(variants), float(eps), solve, int(refine)
+    def __init__(self, variants, eps: float):
+        self.variants, self.eps = list(variants), float(eps)
         self.k = len(self.variants)
         self.S = None          # (n_red, k) current dq/dtheta
         self.dstate = None     # history-state derivatives, one per direction
@@ -91,40 +81,18 @@ class Sensitivity:
         self.dstate = [None] * self.k
 
     def step(self, eng, q, ev, dt, state, new_state, control):
-        # (models may define state_after(state, q, dt), the committed history without a
-        # residual evaluation; otherwise evaluate + commit)
         """Advance the sensitivities over one converged step (q, ev at its end; `state`
-        before it, `new_state` after)."""
-        from .solver import _lbfgs
-
-        model, eps = eng.model, self.eps
-        p = model.punch_index
-        if self.solve == "exact":
-            eng.refactor(q, dt, state, control)
-            eng.pairs, eng.fresh = [], False
-            pairs = []
-        else:
-            if not eng.has_factor:
-                eng.refactor(q, dt, state, control)
-                eng.pairs, eng.fresh = [], False
-            pairs = eng.pairs
-        inv = lambda b: _lbfgs(b, pairs, eng.solve)
+        before it, `new_state` after). Models may define ``state_after(state, q, dt)``, the
+        committed history without a residual evaluation; otherwise evaluate + commit."""
+        eps = self.eps
+        eng.refactor(q, dt, state, control)          # the tangent at the converged state
+        eng.pairs, eng.fresh = [], False             # (it also serves the next step's iterations)
         states = [state_axpy(state, self.dstate[i], eps) for i in range(self.k)]
         rhs = np.column_stack([-(var.evaluate(q, dt, st_i, tangent=False).r - ev.r) / eps
                                for var, st_i in zip(self.variants, states)])
         if control == "displacement":
-            rhs[p] = 0.0
-        if self.solve == "exact":
-            self.S = eng.solve(rhs)                      # one block back-substitution
-        else:
-            for i in range(self.k):
-                s = inv(rhs[:, i])
-                for _ in range(self.refine):
-                    res = rhs[:, i] - (model.evaluate(q + eps * s, dt, state, tangent=False).r - ev.r) / eps
-                    if control == "displacement":
-                        res[p] = 0.0
-                    s = s + inv(res)
-                self.S[:, i] = s
+            rhs[eng.model.punch_index] = 0.0
+        self.S = eng.solve(rhs)                      # one block back-substitution
         for i, (var, st_i) in enumerate(zip(self.variants, states)):
             q_i = q + eps * self.S[:, i]
             if hasattr(var, "state_after"):

@@ -5,8 +5,11 @@ checkpoint that makes an interrupted fit resume with the same result.
 Normalization: x = log10(p) for moduli, compliances, times and permeability; x = p for
 relaxation fractions (bounded in [0, 0.999]). Bounds are the law's parameter bounds.
 
-Checkpoint: a folder with `evaluations.jsonl` (one line per forward solve) and
-`residual_<n>.npy`. A resumed fit replays the deterministic optimizer from the same start;
+Least squares takes its Jacobian from the forward solve's parameter sensitivities
+(`fem.sensitivity`; one solve per evaluation) or from forward differences.
+
+Checkpoint: a folder with `evaluations.jsonl` (one line per forward solve),
+`residual_<n>.npy` and, for solves with sensitivities, `jacobian_<n>.npy`. A resumed fit replays the deterministic optimizer from the same start;
 solves already in the checkpoint are read back instead of recomputed, so the path and the
 result are those of an uninterrupted run.
 """
