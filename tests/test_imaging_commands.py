@@ -141,6 +141,11 @@ def test_fit_writes_a_complete_fit_file_and_its_convergence_figure(tmp_path, syn
     ds3 = xr.load_dataset(out3)
     assert ds3.attrs["observation"] == "tracker" and ds3.v_fem.shape == (2, 1490, 3)
     assert float((ds3.residual ** 2).sum()) == pytest.approx(float(ds3.phi), rel=1e-9)
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(flow), "--mesh", str(MESH),
+                      "--observation", "tracker", "--law", "elastic", "--start", "C1=150",
+                      "--fixed", "D1=1.5e-3", "--fixed", "C2=5000", "--max-evaluations", "1",
+                      "--out", str(tmp_path / "fit4.nc")])
+    assert a.func(a) == 0                                # the model on the tracking mesh itself
     f = xr.load_dataset(flow)
     del f.attrs["options"]
     f.to_netcdf(tmp_path / "bare.nc", engine="h5netcdf")

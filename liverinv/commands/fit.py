@@ -46,14 +46,15 @@ def register(sub):
 
 
 def tracking_observation(bundle, flow, tracking_mesh, model_mesh):
-    """The tracker's observation operator for a flow of `bundle` tracked on `tracking_mesh`."""
+    """The tracker's observation operator for a flow of `bundle` tracked on `tracking_mesh`
+    (a path or a TetMesh), for a model on the TetMesh `model_mesh`."""
     from ..imaging.observation import TrackingObservation, track_options_of
     from ..mesh import read_mesh
 
     opts, stride, window = track_options_of(flow)
-    tm = read_mesh(tracking_mesh, required=())
+    tm = tracking_mesh if hasattr(tracking_mesh, "points") else read_mesh(tracking_mesh, required=())
     if tm.n_nodes != flow.sizes.get("node") or not np.allclose(tm.points, flow.X.values, rtol=0, atol=1e-9):
-        raise ValueError(f"{tracking_mesh} is not the mesh the flow was tracked on (its nodes differ)")
+        raise ValueError(f"{tm.path} is not the mesh the flow was tracked on (its nodes differ)")
     return TrackingObservation.build(bundle.frame(0), bundle.grid, tm.points, tm.cells, model_mesh.points,
                                      model_mesh.cells, opts, stride, window)
 
@@ -88,7 +89,10 @@ def run(args) -> int:
         with open_bundle(args.bundle) as b:
             ind = b.indenter
             t_ind, depth, force = ind.time_s, ind.displacement_m, ind.force_N
-            observation = tracking_observation(b, flow, args.mesh, fm.mesh) if args.observation == "tracker" else None
+            observation = None
+            if args.observation == "tracker":
+                tracking_mesh = args.mesh if args.model_mesh else fm.mesh   # read once if the same
+                observation = tracking_observation(b, flow, tracking_mesh, fm.mesh)
         obj = Objective(fm, args.law, Measurements.from_flow(flow, t_ind, depth, force), fixed=fixed,
                         observation=observation)
     except (LawError, MeshError, ValueError, KeyError, OSError) as e:
