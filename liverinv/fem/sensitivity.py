@@ -40,24 +40,23 @@ def _state_arrays(state):
     return {k: v for k, v in vars(state).items() if isinstance(v, np.ndarray)}
 
 
-def state_axpy(a, b, beta):
-    """The history state a + beta b (field by field; b may be None: a itself)."""
-    if b is None or beta == 0.0:
-        return a
+def _state_map(a, b, f):
+    """A history state whose array fields are f(a.field, b.field)."""
     new = a.__class__.__new__(a.__class__)
     new.__dict__.update(vars(a))
     for k, v in _state_arrays(a).items():
-        setattr(new, k, v + beta * getattr(b, k))
+        setattr(new, k, f(v, getattr(b, k)))
     return new
+
+
+def state_axpy(a, b, beta):
+    """The history state a + beta b (field by field; b may be None: a itself)."""
+    return a if b is None or beta == 0.0 else _state_map(a, b, lambda x, y: x + beta * y)
 
 
 def state_difference(a, b, scale):
     """(a - b) * scale, field by field."""
-    new = a.__class__.__new__(a.__class__)
-    new.__dict__.update(vars(a))
-    for k, v in _state_arrays(a).items():
-        setattr(new, k, (v - getattr(b, k)) * scale)
-    return new
+    return _state_map(a, b, lambda x, y: (x - y) * scale)
 
 
 class Sensitivity:

@@ -114,11 +114,12 @@ class Objective:
         self.options = options or NewtonOptions()
         self.confidence_floor = confidence_floor
         self.K, self.N = data.u_of.shape[:2]
-        self.to_data = self._interpolation(forward.mesh, data, outside_tol)
-        if observation is not None:
-            if (observation.N, observation.n_model) != (self.N, forward.mesh.n_nodes):
-                raise ValueError(f"observation maps {observation.n_model} model nodes to {observation.N} "
-                                 f"tracked nodes; the model mesh has {forward.mesh.n_nodes}, the data {self.N}")
+        if observation is None:
+            self.to_data = self._interpolation(forward.mesh, data, outside_tol)
+        elif (observation.N, observation.n_model) != (self.N, forward.mesh.n_nodes):
+            raise ValueError(f"observation maps {observation.n_model} model nodes to {observation.N} "
+                             f"tracked nodes; the model mesh has {forward.mesh.n_nodes}, the data {self.N}")
+        else:
             self.to_data = observation
         dt_f = data.t1 - data.t0
         if np.any(dt_f <= 0):

@@ -99,10 +99,12 @@ class TrackingObservation:
         T = (R / h).T                                             # (3, 3): u_vox = T u_m
         Tinv = R * h                                              # v_m = Tinv v_vox
         L = {(a, c): sum(sp.diags(Ainv[:, a, b]) @ S[b, c] for b in range(3)) for a in range(3) for c in range(3)}
-        blocks = [[sum(Tinv[al, a] * T[c, be] * L[a, c] for a in range(3) for c in range(3) if Tinv[al, a] * T[c, be] != 0)
-                   for be in range(3)] for al in range(3)]
-        blocks = [[b if not np.isscalar(b) else None for b in row] for row in blocks]
-        O = sp.bmat(blocks, format="csr")                         # component-major
+        def block(al, be):   # (Tinv L T)[al, be]; only the non-zero terms (keeps L's pattern)
+            terms = [Tinv[al, a] * T[c, be] * L[a, c] for a in range(3) for c in range(3)
+                     if Tinv[al, a] * T[c, be] != 0]
+            return sum(terms[1:], terms[0]) if terms else None
+
+        O = sp.bmat([[block(al, be) for be in range(3)] for al in range(3)], format="csr")   # component-major
         N, n = W.shape[0], P.shape[1]
         rows = np.arange(3 * N).reshape(3, N).T.ravel()           # node-major order
         cols = np.arange(3 * n).reshape(3, n).T.ravel()
