@@ -74,24 +74,34 @@ class Sensitivity:
         self.k = len(self.variants)
         self.S = None          # (n_red, k) current dq/dtheta
         self.dstate = None     # history-state derivatives, one per direction
+        self.dforce = None     # (k,) derivative of the punch force (displacement control)
 
     def start(self, model, state):
         self.S = np.zeros((model.n_red, self.k))
         self.dstate = [None] * self.k
+        self.dforce = np.zeros(self.k)
 
     def step(self, eng, q, ev, dt, state, new_state, control):
         """Advance the sensitivities over one converged step (q, ev at its end; `state`
         before it, `new_state` after). Models may define ``state_after(state, q, dt)``, the
         committed history without a residual evaluation; otherwise evaluate + commit."""
         eps = self.eps
-        eng.refactor(q, dt, state, control)          # the tangent at the converged state
-        eng.pairs, eng.fresh = [], False             # (it also serves the next step's iterations)
+        p = eng.model.punch_index
+        tangent = eng.evaluate(q, dt, state, True)   # the tangent at the converged state
+        # displacement control: the punch force r_p is a result; its row of the tangent
+        # (before the punch is fixed) gives dF = dr_p/dtheta + K_p . s
+        K_p = tangent.K[[p]].toarray().ravel() if control == "displacement" else None
+        eng.refactor(q, dt, state, control, tangent)  # (it also serves the next step's iterations)
+        eng.pairs, eng.fresh = [], False
         states = [state_axpy(state, self.dstate[i], eps) for i in range(self.k)]
         rhs = np.column_stack([-(var.evaluate(q, dt, st_i, tangent=False).r - ev.r) / eps
                                for var, st_i in zip(self.variants, states)])
         if control == "displacement":
-            rhs[eng.model.punch_index] = 0.0
+            dr_p = -rhs[p].copy()
+            rhs[p] = 0.0
         self.S = eng.solve(rhs)                      # one block back-substitution
+        if control == "displacement":
+            self.dforce = dr_p + K_p @ self.S
         for i, (var, st_i) in enumerate(zip(self.variants, states)):
             q_i = q + eps * self.S[:, i]
             if hasattr(var, "state_after"):

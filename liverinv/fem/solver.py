@@ -67,6 +67,7 @@ class History:
     linear_solver: object = None  # SparseSolver with the last factorized tangent (if kept)
     du: np.ndarray | None = None      # (n_frames, k, n_nodes, 3) sensitivities of u, if asked
     ddepth: np.ndarray | None = None  # (n_frames, k) sensitivities of the punch depth
+    dforce: np.ndarray | None = None  # (n_frames, k) sensitivities of the punch force
 
 
 class _Engine:
@@ -278,6 +279,7 @@ def solve_history(model: Indentation, times, values, control="displacement",
         sensitivity.start(model, state)
         du = np.zeros((n, sensitivity.k, model.space.mesh.n_nodes, 3))
         ddepth = np.zeros((n, sensitivity.k))
+        dforce = np.zeros((n, sensitivity.k))
     for k in range(1, n):
         pending = [(times[k - 1], values[k - 1], times[k], values[k], 0)]
         while pending:
@@ -320,6 +322,7 @@ def solve_history(model: Indentation, times, values, control="displacement",
         if sensitivity is not None:
             du[k] = [model.displacement(sensitivity.S[:, i]) for i in range(sensitivity.k)]
             ddepth[k] = sensitivity.S[p]
+            dforce[k] = sensitivity.dforce if control == "displacement" else 0.0
         if record is not None:
             record(k, q, last)
     timing = dict(wall_s=_time.perf_counter() - t_start, assembly_s=eng.t_assembly,
@@ -335,5 +338,5 @@ def solve_history(model: Indentation, times, values, control="displacement",
         eng.lin.free()
     h = History(times, depth, force, u, iters, cuts, timing, state, q, kept)
     if sensitivity is not None:
-        h.du, h.ddepth = du, ddepth
+        h.du, h.ddepth, h.dforce = du, ddepth, dforce
     return h
