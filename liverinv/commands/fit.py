@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,11 +19,21 @@ def register(sub):
     p.add_argument("--mesh", required=True, help="the mesh the flow was tracked on")
     p.add_argument("--model-mesh", help="mesh of the forward model, if not --mesh (e.g. one refined at "
                    "the punch rim); its displacement is interpolated at the tracked nodes")
-    p.add_argument("--observation", choices=["nodes", "tracker"], default="nodes",
-                   help="compare the model's motion at the tracked nodes (the paper), or as the tracker "
-                        "would report it: window-averaged with the first volume's gradients, which removes "
-                        "the tracker's averaging bias where the motion is peaked (needs the flow's "
-                        "tracking options; ~15 s to build)")
+    p.add_argument("--observation", choices=["nodes", "tracker"], default=None,
+                   help="compare the model's motion at the tracked nodes (the paper; default of --objective "
+                        "paper), or as the tracker would report it (default of --objective likelihood): "
+                        "window-averaged with the first volume's gradients, which removes the tracker's "
+                        "averaging bias where the motion is peaked (needs the flow's tracking options; "
+                        "~15 s to build)")
+    p.add_argument("--objective", choices=["likelihood", "paper"], default="likelihood",
+                   help="likelihood (default): the model driven by the smoothed measured depth, the force "
+                        "and the tracked motion each weighted by its noise level; paper: Eqs. 4-5, driven by "
+                        "the raw measured force (exact on noise-free data, biased by sensor noise)")
+    p.add_argument("--noise-force", type=float, metavar="N", help="force noise RMS (default: the bundle's, "
+                   "else estimated from the record)")
+    p.add_argument("--noise-depth", type=float, metavar="M", help="depth noise RMS in m (default: as --noise-force)")
+    p.add_argument("--noise-tracking", type=float, metavar="M", help="frame-pair tracking error at confidence "
+                   "1, in m (default: estimated from the flow, floored)")
     p.add_argument("--law", required=True)
     p.add_argument("--start", action="append", default=[], metavar="NAME=VALUE", help="start value (repeatable)")
     p.add_argument("--fixed", action="append", default=[], metavar="NAME=VALUE", help="held fixed (repeatable)")
@@ -73,6 +84,8 @@ def run(args) -> int:
     from ..mesh import MeshError
 
     start, fixed = parse_assignments(args.start, "--start"), parse_assignments(args.fixed, "--fixed")
+    if args.observation is None:
+        args.observation = "tracker" if args.objective == "likelihood" else "nodes"
     try:
         law = get_law(args.law)
         start = {**{k: v for k, v in law.defaults.items() if k in law.free and k not in fixed}, **start}
@@ -93,8 +106,12 @@ def run(args) -> int:
             if args.observation == "tracker":
                 tracking_mesh = args.mesh if args.model_mesh else fm.mesh   # read once if the same
                 observation = tracking_observation(b, flow, tracking_mesh, fm.mesh)
+            noise = None
+            if args.objective == "likelihood":
+                from ..identify.noise import noise_model
+                noise = noise_model(ind, flow, args.noise_force, args.noise_depth, args.noise_tracking)
         obj = Objective(fm, args.law, Measurements.from_flow(flow, t_ind, depth, force), fixed=fixed,
-                        observation=observation)
+                        observation=observation, noise=noise)
     except (LawError, MeshError, ValueError, KeyError, OSError) as e:
         raise UserError(str(e)) from None
     bar = tqdm(desc=f"fit {args.law}", unit="solve", disable=None)
@@ -125,6 +142,8 @@ def run(args) -> int:
                                                    model_mesh_sha256=file_sha256(args.model_mesh or args.mesh)))
     write_netcdf(ds, args.out)
     best_p = ", ".join(f"{k}={v:.4g}" for k, v in zip(ds.param.values, ds.best.values))
-    print(f"wrote {args.out}: {best_p}; Phi = {float(ds.phi):.3e} (vol {float(ds.phi_vol):.3e}, "
-          f"ind {float(ds.phi_ind):.3e}) after {ds.attrs['n_solves']} forward solves")
+    print(f"wrote {args.out}: {best_p}; Phi = {float(ds.phi):.4g} (vol {float(ds.phi_vol):.4g}, "
+          f"ind {float(ds.phi_ind):.4g}) after {ds.attrs['n_solves']} forward solves")
+    for line in filter(None, ds.attrs["warnings"].split("\n")):
+        print(f"warning: {line}", file=sys.stderr)
     return 0

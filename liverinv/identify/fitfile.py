@@ -11,7 +11,9 @@ from ..laws import PARAMS
 from .optimize import Fit
 from .uncertainty import gauss_newton
 
-__all__ = ["fit_dataset"]
+__all__ = ["fit_dataset", "fit_warnings"]
+
+INDENTER_EXCESS = 2.0   # warn when the indenter residual's RMS exceeds its noise level this much
 
 
 def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset:
@@ -24,25 +26,32 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
     ev = fit.obj(fit.params_of(x_best))  # the optimum once more: residuals and velocities
     if jacobian is None:
         jacobian, _ = fit.fd_jacobian(x_best, purpose="uncertainty", fd_purpose="uncertainty")
-    unc = gauss_newton(jacobian, ev.residual, fit.obj.M, fit.log_scale)
+    noise = getattr(fit.obj, "noise", None)
+    groups = fit.obj.residual_groups() if noise is not None else None
+    unc = gauss_newton(jacobian, ev.residual, fit.obj.M, fit.log_scale, groups=groups)
     units = [PARAMS[k].unit for k in names]
+    phi_units = "1" if noise is not None else "m^2/s^2"
     ds = xr.Dataset(
         data_vars=dict(
             best=("param", [ev.params[k] for k in names], {"long_name": "identified parameters (SI)"}),
             start=("param", [fit.start[k] for k in names]),
             param_unit=("param", units),
             history_params=(("evaluation", "param"), P),
-            history_phi=("evaluation", [r["phi"] for r in hist], {"units": "m^2/s^2"}),
-            history_phi_vol=("evaluation", [r["phi_vol"] for r in hist], {"units": "m^2/s^2"}),
-            history_phi_ind=("evaluation", [r["phi_ind"] for r in hist], {"units": "m^2/s^2"}),
+            history_phi=("evaluation", [r["phi"] for r in hist], {"units": phi_units}),
+            history_phi_vol=("evaluation", [r["phi_vol"] for r in hist], {"units": phi_units}),
+            history_phi_ind=("evaluation", [r["phi_ind"] for r in hist], {"units": phi_units}),
             history_ok=("evaluation", np.array([bool(r["ok"]) for r in hist])),
             history_wall_s=("evaluation", [r["wall_s"] for r in hist], {"units": "s"}),
             history_purpose=("evaluation", [r["purpose"] for r in hist]),
-            phi=((), ev.phi, {"units": "m^2/s^2"}),
-            phi_vol=((), ev.phi_vol, {"units": "m^2/s^2"}),
-            phi_ind=((), ev.phi_ind, {"units": "m^2/s^2"}),
+            phi=((), ev.phi, {"units": phi_units}),
+            phi_vol=((), ev.phi_vol, {"units": phi_units}),
+            phi_ind=((), ev.phi_ind, {"units": phi_units}),
             rms_depth=((), ev.rms_depth, {"units": "m", "long_name": "RMS indenter displacement error"}),
             rms_axial=((), ev.rms_axial, {"units": "m", "long_name": "RMS axial nodal displacement error"}),
+            rms_force=((), getattr(ev, "rms_force", np.nan), {"units": "N", "long_name": "RMS indenter force error"}),
+            n_vol=((), int(np.count_nonzero(fit.obj._w_vol)), {"long_name": "volumetric residuals that carry data"}),
+            n_ind=((), int(fit.obj.M), {"long_name": "indenter residuals"}),
+            at_bound=("param", _at_bound(fit, x_best)),
             residual=("residual_index", ev.residual),
             v_fem=(("frame", "node", "component"), ev.v_fem, {"units": "m/s", "long_name": "model nodal velocity at the optimum"}),
             cov_x=(("param", "param2"), unc["cov_x"], {"long_name": "covariance of normalized parameters (log10 for log-scaled)"}),
@@ -57,5 +66,37 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
     ds.attrs = provenance(law=fit.obj.law, method=result["method"], message=result["message"],
                           fixed=fit.obj.fixed, n_solves=int(result["n_solves"]),
                           cond=float(unc["cond"]), cond_indenter_only=float(unc["cond_indenter_only"]),
+                          objective="likelihood" if noise is not None else "paper",
+                          noise=noise.to_json() if noise is not None else "",
+                          covariance=(f"cluster-robust over {unc['n_groups']} groups" if groups is not None
+                                      else "Gauss-Newton, independent residuals"),
                           **(attrs or {}))
+    ds.attrs["warnings"] = "\n".join(fit_warnings(ds))
     return ds
+
+
+def _at_bound(fit, x, tol=1e-3):
+    x = np.asarray(x, float)
+    return (np.abs(x - fit.lo) < tol) | (np.abs(x - fit.hi) < tol)
+
+
+def fit_warnings(ds) -> list[str]:
+    """What a user must know before trusting a fit: parameters at a bound, parameters the
+    data do not determine, an indenter residual far above its noise level."""
+    out = []
+    names = [str(p) for p in ds.param.values]
+    bound = [n for n, b in zip(names, ds.at_bound.values) if b]
+    if bound:
+        out.append(f"ended at a bound: {', '.join(bound)}")
+    loose = [f"{n} (relative SD {sd:.2g})" for n, sd, ok in zip(names, ds.rel_sd.values, ds.determined.values)
+             if not ok]
+    if loose:
+        out.append(f"not determined by the data: {', '.join(loose)}")
+    if ds.attrs.get("objective") == "likelihood" and int(ds.n_ind) > 0:
+        import json
+        sigma = json.loads(ds.attrs["noise"])["force_N"]
+        ratio = float(ds.rms_force) / sigma
+        if ratio > INDENTER_EXCESS:
+            out.append(f"indenter force residual RMS {float(ds.rms_force):.3g} N is {ratio:.1f} x its noise "
+                       f"level {sigma:.3g} N: the law does not explain the force record")
+    return out

@@ -31,7 +31,8 @@ __all__ = ["Fit", "FAILED_PHI"]
 
 log = logging.getLogger(__name__)
 
-FAILED_PHI = 1e3  # m^2/s^2: penalty of a failed forward solve (far above any real misfit)
+FAILED_PHI = 1e3  # m^2/s^2: penalty of a failed forward solve of the paper's Phi (far above any
+                  # real misfit); objectives may set their own `failed_phi`
 
 
 class Fit:
@@ -61,6 +62,7 @@ class Fit:
         self._n_records = 0
         self.sens_step = 1e-6      # normalized step of the sensitivity directions
         self._sensitive = bool(getattr(objective, "sensitivities", False))
+        self.failed_phi = float(getattr(objective, "failed_phi", FAILED_PHI))
         if self.ckpt:
             self.ckpt.mkdir(parents=True, exist_ok=True)
             self._load_checkpoint()
@@ -122,8 +124,9 @@ class Fit:
             n = self._n_records
             self._n_records += 1
             rec = dict(key=list(key), x=list(map(float, x)), params=ev.params, ok=ev.ok,
-                       phi=ev.phi if ev.ok else FAILED_PHI, phi_vol=ev.phi_vol, phi_ind=ev.phi_ind,
-                       rms_depth=ev.rms_depth, rms_axial=ev.rms_axial, wall_s=ev.wall_s,
+                       phi=ev.phi if ev.ok else self.failed_phi, phi_vol=ev.phi_vol, phi_ind=ev.phi_ind,
+                       rms_depth=ev.rms_depth, rms_axial=ev.rms_axial,
+                       rms_force=getattr(ev, "rms_force", np.nan), wall_s=ev.wall_s,
                        message=ev.message, purpose=purpose, n=n, replayed=False)
             rec["residual"] = ev.residual
             J = getattr(ev, "jacobian", None)
@@ -148,7 +151,7 @@ class Fit:
         rec = self.evaluate(x, purpose)
         if rec["ok"] and rec["residual"] is not None:
             return rec["residual"]
-        return np.full(self.obj.n_residuals, np.sqrt(FAILED_PHI / self.obj.n_residuals))
+        return np.full(self.obj.n_residuals, np.sqrt(self.failed_phi / self.obj.n_residuals))
 
     def fd_jacobian(self, x, fd_step=1e-3, purpose="step", fd_purpose="fd-jacobian"):
         """Forward-difference Jacobian of the residual vector at normalized x (one recorded

@@ -1,0 +1,148 @@
+r"""Noise levels of the measurements and the smoothing of the indenter record.
+
+The noise-aware objective (`objective.Objective` with a `NoiseModel`) is a Gaussian
+likelihood: each residual is divided by the standard deviation of its measurement, so that
+Phi = sum r^2 is -2 log L up to a constant and the volumetric and indenter terms balance by
+information rather than by units.
+
+* Indenter: white sensor noise on the depth and force samples (the seed paper's system:
+  3.9 um and 13 mN RMS with its controller, section 2.1.1). The levels come from the bundle
+  (`displacement_noise_rms_m`, `force_noise_rms_N`) and, where those are 0, from the record
+  itself (`white_noise_rms`: second differences of the samples, robust to the kinks of the
+  load reversal).
+* Tracking: the frame-pair motion u_OF has an error that grows where the texture (the
+  confidence c_OF) is weak and with speckle decorrelation. Its level is estimated from the
+  flow itself (`tracking_noise`): true tissue motion is smooth in time at the frame rate,
+  so the second difference of u_OF over frame pairs is noise (robustly, at confident nodes);
+  its dependence on c follows the measured law sigma(c) = sigma_1 c^-1/2 (weights c, the
+  paper's), with a floor for the tracker's systematic error on noise-free images.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = ["NoiseModel", "white_noise_rms", "smooth_record", "tracking_noise", "noise_model"]
+
+log = logging.getLogger(__name__)
+
+_MAD = 1.482602218505602   # MAD -> standard deviation of a normal distribution
+
+# The tracker's floor: a frame-pair motion error of this fraction of the axial voxel even
+# on noise-free warped images (interpolation and window effects; measured 0.015 voxel RMS
+# at a reversal on the default refinement, tests/test_imaging_tracking.py)
+TRACKING_FLOOR_VOXEL = 0.02
+
+
+@dataclass
+class NoiseModel:
+    """Standard deviations of the measurements (SI). `sources` says where each came from."""
+    force_N: float
+    depth_m: float
+    tracking_m: float          # frame-pair motion error at confidence 1
+    sources: dict
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self))
+
+
+def white_noise_rms(y) -> float:
+    """RMS of white noise on a smooth, uniformly sampled record: the second difference of
+    white noise of RMS s has RMS sqrt(6) s, a smooth signal adds only y'' dt^2, and the median
+    absolute deviation ignores the few samples at a kink (the load reversal)."""
+    d2 = np.diff(np.asarray(y, float), 2)
+    if d2.size < 8:
+        raise ValueError("too few samples to estimate the noise level (need at least 10)")
+    return float(_MAD * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+
+
+def smooth_record(t, y, sigma):
+    """Smoothing spline of samples y(t) whose residual RMS equals the noise level `sigma`
+    (the discrepancy principle; scipy's `make_smoothing_spline`, lam found by bisection in
+    log lam). Returns a callable; sigma <= 0 gives the linear interpolant of the samples."""
+    from scipy.interpolate import make_smoothing_spline
+
+    t, y = np.asarray(t, float), np.asarray(y, float)
+    if sigma <= 0:
+        return lambda tq: np.interp(tq, t, y)
+    scale = float(np.ptp(t)) or 1.0
+    tau = (t - t[0]) / scale                     # lam on a unit time axis
+
+    def rms(log_lam):
+        s = make_smoothing_spline(tau, y, lam=10.0 ** log_lam)
+        return float(np.sqrt(np.mean((s(tau) - y) ** 2))), s
+
+    lo, hi = -16.0, 2.0
+    if rms(lo)[0] >= sigma:                      # already rougher than the noise: no smoothing
+        return lambda tq: np.interp(tq, t, y)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if rms(mid)[0] > sigma:
+            hi = mid
+        else:
+            lo = mid
+    spline = rms(lo)[1]
+    return lambda tq: spline((np.asarray(tq, float) - t[0]) / scale)
+
+
+def tracking_noise(u_of, c_of, dt, grid_spacing_m=None, confidence_floor=0.1) -> tuple[float, str]:
+    """Frame-pair tracking error at confidence 1 (m), from the flow itself.
+
+    The motion per unit time of a node changes smoothly from one frame pair to the next, so
+    e_k = (u_k / dt_k - (u_{k-1} / dt_{k-1} + u_{k+1} / dt_{k+1}) / 2) dt_k is noise of variance
+    1.5 sigma_k^2 (independent pairs); sigma_k^2 c_k is constant under the weights c. Robust
+    (median absolute deviation of e sqrt(c) at nodes with c >= `confidence_floor`). Floored at
+    `TRACKING_FLOOR_VOXEL` of the finest voxel spacing when given."""
+    u_of, c_of = np.asarray(u_of, float), np.asarray(c_of, float)
+    dt = np.asarray(dt, float)
+    source = "estimated from the flow (second differences over frame pairs)"
+    if u_of.shape[0] < 3:
+        est = 0.0
+    else:
+        v = u_of / dt[:, None, None]
+        e = (v[1:-1] - 0.5 * (v[:-2] + v[2:])) * dt[1:-1, None, None]
+        c = c_of[1:-1]
+        ok = c >= confidence_floor
+        est = float(_MAD * np.median(np.abs(e[ok] * np.sqrt(c[ok]))) / np.sqrt(1.5)) if ok.any() else 0.0
+    if grid_spacing_m is not None:
+        floor = TRACKING_FLOOR_VOXEL * float(np.min(grid_spacing_m))
+        if est < floor:
+            return floor, f"floor {TRACKING_FLOOR_VOXEL:g} voxel (estimate from the flow {est:.3g} m)"
+    return est, source
+
+
+def noise_model(indenter, flow, force_N=None, depth_m=None, tracking_m=None) -> NoiseModel:
+    """Noise levels for a bundle's indenter record and a flow: given values first, then the
+    bundle's, then estimates from the record itself. A noise-free record (synthetic data)
+    gets a floor of 1e-4 of its range, so that the likelihood stays finite."""
+    sources = {}
+
+    def level(given, recorded, samples, name, unit):
+        if given is not None:
+            sources[name] = "given"
+            return float(given)
+        if recorded and recorded > 0:
+            sources[name] = "bundle"
+            return float(recorded)
+        est = white_noise_rms(samples)
+        floor = 1e-4 * float(np.ptp(samples))
+        if est < floor:
+            sources[name] = f"floor 1e-4 of the range (estimate {est:.3g} {unit})"
+            return floor
+        sources[name] = "estimated from the record (second differences)"
+        return est
+
+    f = level(force_N, indenter.force_noise_rms_N, indenter.force_N, "force_N", "N")
+    d = level(depth_m, indenter.displacement_noise_rms_m, indenter.displacement_m, "depth_m", "m")
+    if tracking_m is not None:
+        tr, sources["tracking_m"] = float(tracking_m), "given"
+    else:
+        spacing = flow["spacing_m"].values if "spacing_m" in flow else None
+        dt = flow.time_end.values - flow.time_start.values
+        tr, sources["tracking_m"] = tracking_noise(flow.u_of.values, flow.c_of.values, dt, spacing)
+    log.info("noise: force %.3g N, depth %.3g m, tracking %.3g m (%s)", f, d, tr, sources)
+    return NoiseModel(f, d, tr, sources)
