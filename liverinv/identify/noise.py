@@ -26,7 +26,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["NoiseModel", "white_noise_rms", "smooth_record", "tracking_noise", "noise_model"]
+__all__ = ["NoiseModel", "white_noise_rms", "reversals", "smooth_record", "piecewise_quadratic",
+           "tracking_noise", "noise_model"]
 
 log = logging.getLogger(__name__)
 
@@ -60,33 +61,87 @@ def white_noise_rms(y) -> float:
     return float(_MAD * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
-def smooth_record(t, y, sigma):
-    """Smoothing spline of samples y(t) whose residual RMS equals the noise level `sigma`
-    (the discrepancy principle; scipy's `make_smoothing_spline`, lam found by bisection in
-    log lam). Returns a callable; sigma <= 0 gives the linear interpolant of the samples."""
+def reversals(t, y, sigma, min_fraction=0.05):
+    """Times where a load history turns (local extrema of the GCV-smoothed record that
+    stand out of it by `min_fraction` of its range): the kinks a spline must not round."""
+    from scipy.signal import find_peaks
+
+    t, y = np.asarray(t, float), np.asarray(y, float)
+    if sigma <= 0 or len(t) < 10:
+        ys = y
+    else:
+        from scipy.interpolate import make_smoothing_spline
+        ys = make_smoothing_spline(t, y)(t)
+    prom = min_fraction * float(np.ptp(ys))
+    if prom <= 0:
+        return np.zeros(0)
+    peaks = np.concatenate([find_peaks(ys, prominence=prom)[0], find_peaks(-ys, prominence=prom)[0]])
+    return np.sort(t[peaks])
+
+
+def smooth_record(t, y, sigma, breaks=()):
+    """Smoothing spline of noisy samples y(t) (scipy's `make_smoothing_spline`, lam by
+    generalized cross-validation), one per piece between the `breaks` (the load reversals,
+    which a single spline would round); `sigma` <= 0 (a noise-free record) gives the linear
+    interpolant of the samples. Returns a callable.
+
+    GCV rather than the discrepancy principle (residual RMS = sigma): on a 6 mm load-unload
+    depth at 100 Hz with 3.9 um noise (three seeds), one spline over the reversal leaves
+    0.47 sigma RMS error with GCV and 4-6 sigma at the kink, 0.52-0.60 and 7-9 sigma with the
+    discrepancy principle; split at the reversal, GCV leaves 0.3 sigma and under 2 sigma."""
     from scipy.interpolate import make_smoothing_spline
 
     t, y = np.asarray(t, float), np.asarray(y, float)
     if sigma <= 0:
         return lambda tq: np.interp(tq, t, y)
-    scale = float(np.ptp(t)) or 1.0
-    tau = (t - t[0]) / scale                     # lam on a unit time axis
+    edges = np.concatenate([[t[0]], np.asarray(breaks, float), [t[-1]]])
+    pieces = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        m = (t >= a - 1e-12) & (t <= b + 1e-12)
+        pieces.append(make_smoothing_spline(t[m], y[m]) if m.sum() >= 5 else
+                      (lambda tq, tm=t[m], ym=y[m]: np.interp(tq, tm, ym)))
 
-    def rms(log_lam):
-        s = make_smoothing_spline(tau, y, lam=10.0 ** log_lam)
-        return float(np.sqrt(np.mean((s(tau) - y) ** 2))), s
+    def smoothed(tq):
+        tq = np.asarray(tq, float)
+        k = np.clip(np.searchsorted(edges, tq, side="right") - 1, 0, len(pieces) - 1)
+        out = np.empty(tq.shape)
+        for i, piece in enumerate(pieces):
+            out[k == i] = piece(tq[k == i])
+        return out
+    return smoothed
 
-    lo, hi = -16.0, 2.0
-    if rms(lo)[0] >= sigma:                      # already rougher than the noise: no smoothing
-        return lambda tq: np.interp(tq, t, y)
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        if rms(mid)[0] > sigma:
-            hi = mid
-        else:
-            lo = mid
-    spline = rms(lo)[1]
-    return lambda tq: spline((np.asarray(tq, float) - t[0]) / scale)
+
+def piecewise_quadratic(t_nodes, t_query, breaks=()):
+    """Sparse matrix W (len(t_query) x len(t_nodes)) of quadratic Lagrange interpolation of
+    values at `t_nodes` (increasing) at `t_query`, through three neighbouring nodes that do
+    not straddle a break (linear where a piece has two nodes). Linear interpolation of the
+    modelled force between frames misses F'' dt^2 / 8, 1 mN for a 0.25 s frame interval,
+    which over hundreds of samples with 13 mN noise is a 2-sigma bias."""
+    import scipy.sparse as sp
+
+    tn, tq = np.asarray(t_nodes, float), np.asarray(t_query, float)
+    tol = 1e-9 * max(1.0, abs(tn[-1]))
+    edges = np.concatenate([[-np.inf], np.asarray(breaks, float), [np.inf]])
+    piece_q = np.clip(np.searchsorted(edges, tq, side="right") - 1, 0, len(edges) - 2)
+    rows, cols, vals = [], [], []
+    k = np.clip(np.searchsorted(tn, tq) - 1, 0, len(tn) - 2)
+    for i, (tqi, ki, pq) in enumerate(zip(tq, k, piece_q)):
+        lo, hi = edges[pq] - tol, edges[pq + 1] + tol     # a node on a break serves both sides
+        cand = [j for j in (ki - 1, ki, ki + 1, ki + 2) if 0 <= j < len(tn) and lo <= tn[j] <= hi]
+        if len(cand) < 2:
+            cand = [ki, ki + 1]
+        if len(cand) > 3:   # the three nearest
+            cand = sorted(cand, key=lambda j: abs(tn[j] - tqi))[:3]
+        cand = sorted(cand)
+        for j in cand:
+            w = 1.0
+            for m in cand:
+                if m != j:
+                    w *= (tqi - tn[m]) / (tn[j] - tn[m])
+            rows.append(i)
+            cols.append(j)
+            vals.append(w)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(len(tq), len(tn)))
 
 
 def tracking_noise(u_of, c_of, dt, grid_spacing_m=None, confidence_floor=0.1) -> tuple[float, str]:

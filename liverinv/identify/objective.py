@@ -48,7 +48,7 @@ import numpy as np
 from ..fem.sensitivity import Sensitivity
 from ..fem.solver import ConvergenceError, NewtonOptions, solve_history
 from ..forward import ForwardModel
-from .noise import smooth_record
+from .noise import piecewise_quadratic, reversals, smooth_record
 
 __all__ = ["Measurements", "Objective", "Evaluation"]
 
@@ -162,11 +162,17 @@ class Objective:
             if min(noise.force_N, noise.depth_m, noise.tracking_m) <= 0:
                 raise ValueError(f"noise levels must be positive: {noise}")
             self.control = "displacement"
-            self.d_drive = smooth_record(data.t_ind, data.depth, noise.depth_m)(t)
+            # the reversals are driving times too, and neither the smoothing of the depth nor
+            # the interpolation of the model's force crosses them
+            self.breaks = reversals(data.t_ind, data.depth, noise.depth_m)
+            self.breaks = self.breaks[(self.breaks > t[0]) & (self.breaks < t[-1])]
+            t = self.t_drive = np.unique(np.concatenate([t, self.breaks]))
+            self.d_drive = smooth_record(data.t_ind, data.depth, noise.depth_m, self.breaks)(t)
             self.d_drive[0] = 0.0
             self.f_drive = self.d_drive
             s = (data.t_ind >= 0) & (data.t_ind <= t[-1] + 1e-12)
             self.t_force, self.f_exp = data.t_ind[s], data.force[s]
+            self._force_at_samples = piecewise_quadratic(t, self.t_force, self.breaks)
             self.M = len(self.t_force)
             self._w_vol = np.sqrt(data.c_of) * dt_f[:, None, None] / noise.tracking_m
             # each residual ~ N(0, 1) at the truth: a failed solve costs 1e3 per residual
@@ -285,5 +291,5 @@ class Objective:
         if self.noise is None:
             ddot = np.diff(depth) / np.diff(self.t_drive)
             return (sign * ddot if derivative else self.ddot_exp - ddot) / np.sqrt(self.M)
-        f = np.interp(self.t_force, self.t_drive, force)
+        f = self._force_at_samples @ force
         return (sign * f if derivative else self.f_exp - f) / self.noise.force_N
