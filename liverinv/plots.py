@@ -84,7 +84,9 @@ def plot_fits(fits, out, truth=None, labels=None):
             ref = (truth or {}).get(name, float(ds.best.sel(param=name)))
             axes[1 + j].plot(n, v / ref, styles[i % 4], color=line.get_color())
     axes[0].set_xlabel("forward solves")
-    axes[0].set_ylabel("Phi (m²/s²): best so far, and each solve")
+    unit = dss[0].history_phi.attrs.get("units", "m^2/s^2") if dss else "m^2/s^2"
+    unit = {"m^2/s^2": "m²/s²", "1": "-2 log L"}.get(unit, unit)
+    axes[0].set_ylabel(f"Phi ({unit}): best so far, and each solve")
     axes[0].legend(fontsize=7)
     for j, name in enumerate(names):
         ax = axes[1 + j]

@@ -159,3 +159,21 @@ def test_paper_objective_is_unchanged_and_its_indenter_term_is_force_noise(noisy
     assert paper.phi_ind > 5 * paper.phi_vol
     lik = Objective(fm, "elastic", noisy, noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))(TRUTH)
     assert lik.phi_ind / lik.phi < 0.5
+
+
+def test_block_inflation_measures_variance_and_correlation():
+    """A block whose residuals are twice as noisy as claimed inflates by 4; one whose errors
+    are shared by groups of 20 rows by about the design effect 1 + (20 - 1) rho."""
+    from liverinv.identify.uncertainty import block_inflation
+    rng = np.random.default_rng(6)
+    n, G = 4000, 200
+    J = rng.normal(size=(n, 2))
+    groups = np.repeat(np.arange(G), n // G)
+    lam = [block_inflation(J, 2.0 * rng.normal(size=n), groups, slice(None)) for _ in range(50)]
+    assert np.mean(lam) == pytest.approx(4.0, rel=0.1)
+    # shared error: rho = 0.5 within groups of 20, regressors shared too (as neighbouring
+    # nodes move alike): design effect 1 + 19 * 0.5 = 10.5
+    Jg = np.repeat(rng.normal(size=(G, 2)), n // G, axis=0)
+    lam = [block_inflation(Jg, np.sqrt(0.5) * (np.repeat(rng.normal(size=G), n // G) + rng.normal(size=n)),
+                           groups, slice(None)) for _ in range(50)]
+    assert np.mean(lam) == pytest.approx(10.5, rel=0.15)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -123,21 +124,30 @@ def run(args) -> int:
         bar.update(1)
         bar.set_postfix(phi=f"{best[0]:.3e}", refresh=False)
 
-    fit = Fit(obj, start, checkpoint=args.checkpoint, progress=progress)
     if args.method == "nelder-mead":
+        fit = Fit(obj, start, checkpoint=args.checkpoint, progress=progress)
         result = fit.nelder_mead(max_evaluations=args.max_evaluations or 400)
         jac = None
     else:
+        from ..identify.balance import balanced_fit
         n_max = args.max_evaluations or 100
-        result = (fit.multistart(args.design_points, args.polish, max_evaluations=n_max,
-                                 probe_evaluations=args.probe_evaluations, jacobian=args.jacobian)
-                  if args.design_points > 0 else fit.least_squares(max_evaluations=n_max, jacobian=args.jacobian))
+
+        def run_least_squares(fit, x0):
+            if x0 is not None:      # the balanced stage, from the first optimum
+                return fit.least_squares(max_evaluations=n_max, x0=x0, jacobian=args.jacobian)
+            if args.design_points > 0:
+                return fit.multistart(args.design_points, args.polish, max_evaluations=n_max,
+                                      probe_evaluations=args.probe_evaluations, jacobian=args.jacobian)
+            return fit.least_squares(max_evaluations=n_max, jacobian=args.jacobian)
+
+        fit, result = balanced_fit(obj, start, run_least_squares, checkpoint=args.checkpoint, progress=progress)
         jac = result.get("jacobian")
     bar.close()
     ds = fit_dataset(fit, result, jac, attrs=dict(bundle=str(args.bundle), flow=str(args.flow),
                                                    mesh=str(args.mesh), mesh_sha256=file_sha256(args.mesh),
                                                    model_mesh=str(args.model_mesh or args.mesh),
                                                    observation=args.observation,
+                                                   stages=json.dumps(result.get("stages", [])),
                                                    jacobian=args.jacobian if args.method == "least-squares" else "",
                                                    model_mesh_sha256=file_sha256(args.model_mesh or args.mesh)))
     write_netcdf(ds, args.out)

@@ -184,6 +184,18 @@ class Objective:
         self._U_of = np.cumsum(data.u_of[..., 2], axis=0)
         self._confident = data.c_of[..., 2] >= confidence_floor
 
+    def with_noise(self, noise) -> "Objective":
+        """The same likelihood objective with other noise levels (e.g. block weights
+        adjusted for the residuals' correlation); shares everything else."""
+        import copy
+        if self.noise is None:
+            raise ValueError("with_noise needs the likelihood objective (noise=)")
+        new = copy.copy(self)
+        new.noise = noise
+        dt_f = self.data.t1 - self.data.t0
+        new._w_vol = np.sqrt(self.data.c_of) * dt_f[:, None, None] / noise.tracking_m
+        return new
+
     def residual_groups(self, block_m=0.006, chunk_s=0.25):
         """A label per residual row for the cluster-robust covariance: volumetric rows by
         cube of side `block_m` around their node (all frames and directions of a cube

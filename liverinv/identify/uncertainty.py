@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["gauss_newton", "cluster_robust"]
+__all__ = ["gauss_newton", "cluster_robust", "block_inflation"]
 
 
 def _cov(J, s2):
@@ -51,6 +51,27 @@ def cluster_robust(J, r, groups):
     except np.linalg.LinAlgError:
         return np.full_like(JtJ, np.nan), G
     return Ainv @ B @ Ainv, G
+
+
+def block_inflation(J, r, groups, rows) -> float:
+    """How much more a block of residual `rows` varies than its weights claim: the mean
+    eigenvalue of (J_b^T J_b)^-1 B_b, B_b the cluster-robust meat of the block (1 for
+    independent residuals of unit variance; the residual variance times the design effect of
+    its correlation otherwise). Dividing the block's residuals by its square root makes its
+    information honest against the other blocks (a composite-likelihood adjustment)."""
+    J_b, r_b, g_b = J[rows], r[rows], np.asarray(groups)[rows]
+    live = np.any(J_b != 0, axis=1) | (r_b != 0)
+    if not live.any():
+        return 1.0
+    _, inverse = np.unique(g_b[live], return_inverse=True)
+    U = np.zeros((inverse.max() + 1, J.shape[1]))
+    np.add.at(U, inverse, J_b[live] * r_b[live, None])
+    A = J_b.T @ J_b
+    sv = np.linalg.svd(A, compute_uv=False)
+    rank = int(np.sum(sv > sv[0] * 1e-10)) if sv.size and sv[0] > 0 else 0
+    if rank == 0:
+        return 1.0
+    return float(np.trace(np.linalg.pinv(A, rcond=1e-10) @ (U.T @ U)) / rank)
 
 
 def gauss_newton(J, r, n_ind, log_scale, groups=None):
