@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
-from pathlib import Path
-
 import numpy as np
 
 from .optimize import Fit
@@ -58,12 +56,30 @@ def balanced_fit(objective, start, run, checkpoint=None, progress=None, tol=0.25
     if not moved:
         result["stages"] = [stage1]
         return fit, result
-    fit2 = Fit(objective.with_noise(balanced), start,
-               checkpoint=Path(checkpoint) / "balanced" if checkpoint else None, progress=progress)
+    fit2 = Fit(objective.with_noise(balanced), start, checkpoint=checkpoint, progress=progress, tag="balanced")
+    _carry_over(fit, fit2, n_vol, noise.tracking_m / balanced.tracking_m, noise.force_N / balanced.force_N)
     result2 = run(fit2, x)
-    result2["n_solves"] += result["n_solves"]
     result2["message"] = (f"{result2['message']} (balanced: tracking noise x{np.sqrt(lam_vol):.3g}, force "
                           f"noise x{np.sqrt(max(lam_ind, 1.0)):.3g}, after {result['n_solves']} solves)")
     result2["stages"] = [stage1, dict(tracking_m=balanced.tracking_m, force_N=balanced.force_N,
                                       n_solves=result2["n_solves"] - result["n_solves"])]
     return fit2, result2
+
+
+def _carry_over(fit, fit2, n_vol, a_vol, a_ind):
+    """The first stage's solves in the second stage's units: the blocks only scale, so every
+    residual, Jacobian and Phi is rescaled exactly and none is solved again."""
+    for rec in fit.history:
+        if tuple(rec["key"]) in fit2._used:
+            continue
+        new = dict(rec)
+        if rec["ok"] and rec["residual"] is not None:
+            scale = np.ones(len(rec["residual"]))
+            scale[:n_vol], scale[n_vol:] = a_vol, a_ind
+            new["residual"] = rec["residual"] * scale
+            new["jacobian"] = None if rec.get("jacobian") is None else rec["jacobian"] * scale[:, None]
+            new["phi_vol"], new["phi_ind"] = rec["phi_vol"] * a_vol ** 2, rec["phi_ind"] * a_ind ** 2
+            new["phi"] = new["phi_vol"] + new["phi_ind"]
+        fit2._cache[tuple(rec["key"])] = new
+        fit2._used.add(tuple(rec["key"]))
+        fit2.history.append(new)

@@ -23,7 +23,13 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
     P = np.array([[r["params"][k] for k in names] for r in hist]) if n else np.zeros((0, len(names)))
     best = result["best"]
     x_best = np.asarray(best["x"]) if best else result["x"]
-    ev = fit.obj(fit.params_of(x_best))  # the optimum once more: residuals and velocities
+    # the optimum once more: residuals and velocities (with sensitivities where the fit used
+    # them: the same solve as the recorded one, and the Jacobian at the optimum itself)
+    if fit._sensitive and best is not None and best.get("jacobian") is not None:
+        ev, steps = fit.solve_with_jacobian(x_best)
+        jacobian = ev.jacobian * np.sign(steps)
+    else:
+        ev = fit.obj(fit.params_of(x_best))
     if jacobian is None:
         jacobian, _ = fit.fd_jacobian(x_best, purpose="uncertainty", fd_purpose="uncertainty")
     noise = getattr(fit.obj, "noise", None)

@@ -39,7 +39,7 @@ class Fit:
     """Identify the free parameters `names` of `objective.law` from `start`."""
 
     def __init__(self, objective: Objective, start: dict, names=None, checkpoint=None,
-                 progress=None):
+                 progress=None, tag=""):
         self.obj = objective
         law = get_law(objective.law)
         self.names = list(names or [n for n in law.free if n not in objective.fixed])
@@ -58,6 +58,7 @@ class Fit:
         self._used = set()
         self.progress = progress
         self.ckpt = Path(checkpoint) if checkpoint else None
+        self.tag = str(tag)        # stage of a fit sharing the checkpoint (e.g. "balanced")
         self._cache = {}
         self._n_records = 0
         self.sens_step = 1e-6      # normalized step of the sensitivity directions
@@ -90,12 +91,14 @@ class Fit:
             return
         for line in f.read_text().splitlines():
             rec = json.loads(line)
+            self._n_records = max(self._n_records, rec["n"] + 1)
+            if rec.get("tag", "") != self.tag:     # another stage's solve
+                continue
             res = self.ckpt / f"residual_{rec['n']}.npy"
             rec["residual"] = np.load(res) if res.exists() else None
             jac = self.ckpt / f"jacobian_{rec['n']}.npy"
             rec["jacobian"] = np.load(jac) if jac.exists() else None
             self._cache[tuple(rec["key"])] = rec
-            self._n_records = max(self._n_records, rec["n"] + 1)
         log.info("checkpoint %s: %d solves to replay", self.ckpt, len(self._cache))
 
     def evaluate(self, x, purpose="step", jacobian=False) -> dict:
@@ -116,9 +119,7 @@ class Fit:
         else:
             steps = None
             if want:
-                steps = np.where(x + self.sens_step <= self.hi, self.sens_step, -self.sens_step)
-                directions = [self.params_of(x + h * e) for h, e in zip(steps, np.eye(len(x)))]
-                ev = self.obj(self.params_of(x), directions=directions, eps=self.sens_step)
+                ev, steps = self.solve_with_jacobian(x)
             else:
                 ev = self.obj(self.params_of(x))
             n = self._n_records
@@ -127,7 +128,7 @@ class Fit:
                        phi=ev.phi if ev.ok else self.failed_phi, phi_vol=ev.phi_vol, phi_ind=ev.phi_ind,
                        rms_depth=ev.rms_depth, rms_axial=ev.rms_axial,
                        rms_force=getattr(ev, "rms_force", np.nan), wall_s=ev.wall_s,
-                       message=ev.message, purpose=purpose, n=n, replayed=False)
+                       message=ev.message, purpose=purpose, n=n, replayed=False, tag=self.tag)
             rec["residual"] = ev.residual
             J = getattr(ev, "jacobian", None)
             rec["jacobian"] = None if J is None else J * np.sign(steps)   # columns along +x
@@ -145,6 +146,14 @@ class Fit:
         if self.progress:
             self.progress(rec)
         return rec
+
+    def solve_with_jacobian(self, x):
+        """One forward solve at normalized x with the sensitivities along every normalized
+        parameter (stepping backward at an upper bound): (Evaluation, steps)."""
+        x = np.asarray(x, float)
+        steps = np.where(x + self.sens_step <= self.hi, self.sens_step, -self.sens_step)
+        directions = [self.params_of(x + h * e) for h, e in zip(steps, np.eye(len(x)))]
+        return self.obj(self.params_of(x), directions=directions, eps=self.sens_step), steps
 
     def residual(self, x, purpose="step"):
         """Residual vector at normalized x (a failed solve: the uniform penalty vector)."""
