@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import replace
+
 import numpy as np
 
 from .optimize import Fit

@@ -3,6 +3,8 @@ misfit components, residuals and model velocities at the optimum, uncertainty, p
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import xarray as xr
 
@@ -99,7 +101,6 @@ def fit_warnings(ds) -> list[str]:
     if loose:
         out.append(f"not determined by the data: {', '.join(loose)}")
     if ds.attrs.get("objective") == "likelihood" and int(ds.n_ind) > 0:
-        import json
         sigma = json.loads(ds.attrs["noise"])["force_N"]
         ratio = float(ds.rms_force) / sigma
         if ratio > INDENTER_EXCESS:

@@ -35,16 +35,21 @@ def _cov(J, s2):
     return cov, cond
 
 
+def _group_scores(J, r, groups):
+    """J_g^T r_g of every group of rows that carries data, (G, n)."""
+    live = np.any(J != 0, axis=1) | (r != 0)
+    _, inverse = np.unique(np.asarray(groups)[live], return_inverse=True)
+    U = np.zeros((inverse.max(initial=-1) + 1, J.shape[1]))
+    np.add.at(U, inverse, J[live] * r[live, None])
+    return U
+
+
 def cluster_robust(J, r, groups):
     """Sandwich covariance of least-squares parameters with residuals correlated within
     `groups` (one label per row), and the number of groups that carry data."""
-    groups = np.asarray(groups)
     JtJ = J.T @ J
-    live = np.any(J != 0, axis=1) | (r != 0)
-    labels, inverse = np.unique(groups[live], return_inverse=True)
-    G = len(labels)
-    U = np.zeros((G, J.shape[1]))
-    np.add.at(U, inverse, J[live] * r[live, None])     # J_g^T r_g for every group
+    U = _group_scores(J, r, groups)
+    G = len(U)
     B = U.T @ U * (G / max(G - 1, 1))
     try:
         Ainv = np.linalg.pinv(JtJ, rcond=1e-14)
@@ -59,13 +64,10 @@ def block_inflation(J, r, groups, rows) -> float:
     independent residuals of unit variance; the residual variance times the design effect of
     its correlation otherwise). Dividing the block's residuals by its square root makes its
     information honest against the other blocks (a composite-likelihood adjustment)."""
-    J_b, r_b, g_b = J[rows], r[rows], np.asarray(groups)[rows]
-    live = np.any(J_b != 0, axis=1) | (r_b != 0)
-    if not live.any():
+    J_b, r_b = J[rows], r[rows]
+    U = _group_scores(J_b, r_b, np.asarray(groups)[rows])
+    if len(U) == 0:
         return 1.0
-    _, inverse = np.unique(g_b[live], return_inverse=True)
-    U = np.zeros((inverse.max() + 1, J.shape[1]))
-    np.add.at(U, inverse, J_b[live] * r_b[live, None])
     A = J_b.T @ J_b
     sv = np.linalg.svd(A, compute_uv=False)
     rank = int(np.sum(sv > sv[0] * 1e-10)) if sv.size and sv[0] > 0 else 0
