@@ -6,7 +6,7 @@ space and time, so the volumetric block holds far fewer independent pieces of in
 than residuals, and a systematic tracking error (the same on every speckle seed) then
 outweighs the force record. `balanced_fit` fits once, measures each block's inflation at the
 optimum (`uncertainty.block_inflation`: residual variance times the design effect of the
-correlation within 6 mm node blocks and 0.25 s record chunks), rescales that block's noise
+correlation within 12 mm node blocks and 0.25 s record chunks), rescales that block's noise
 level by its square root (the force's never below the sensor's) and continues from the
 optimum when a level moved by more than `tol`.
 """
