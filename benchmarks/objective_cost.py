@@ -13,7 +13,7 @@ import time
 import xarray as xr
 
 from liverinv.commands import parse_assignments
-from liverinv.commands.fit import tracking_observation
+from liverinv.imaging.observation import tracking_observation
 from liverinv.forward import ForwardModel
 from liverinv.identify.noise import noise_model
 from liverinv.identify.objective import Measurements, Objective

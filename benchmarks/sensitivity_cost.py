@@ -27,7 +27,7 @@ START = {"PE": dict(C1=200.0, C2=5000.0, D1=1.5e-3, kappa=1e-7),
 def main(argv=None):
     import xarray as xr
 
-    from liverinv.commands.fit import tracking_observation
+    from liverinv.imaging.observation import tracking_observation
     from liverinv.forward import ForwardModel
     from liverinv.identify.objective import Measurements, Objective
     from liverinv.identify.optimize import Fit

@@ -57,20 +57,6 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-def tracking_observation(bundle, flow, tracking_mesh, model_mesh):
-    """The tracker's observation operator for a flow of `bundle` tracked on `tracking_mesh`
-    (a path or a TetMesh), for a model on the TetMesh `model_mesh`."""
-    from ..imaging.observation import TrackingObservation, track_options_of
-    from ..mesh import read_mesh
-
-    opts, stride, window = track_options_of(flow)
-    tm = tracking_mesh if hasattr(tracking_mesh, "points") else read_mesh(tracking_mesh, required=())
-    if tm.n_nodes != flow.sizes.get("node") or not np.allclose(tm.points, flow.X.values, rtol=0, atol=1e-9):
-        raise ValueError(f"{tm.path} is not the mesh the flow was tracked on (its nodes differ)")
-    return TrackingObservation.build(bundle.frame(0), bundle.grid, tm.points, tm.cells, model_mesh.points,
-                                     model_mesh.cells, opts, stride, window)
-
-
 def run(args) -> int:
     import xarray as xr
     from tqdm import tqdm
@@ -81,6 +67,7 @@ def run(args) -> int:
     from ..identify.objective import Measurements, Objective
     from ..identify.optimize import Fit
     from ..imaging.bundle import open_bundle
+    from ..imaging.observation import tracking_observation
     from ..laws import LawError, get_law
     from ..mesh import MeshError
 

@@ -39,7 +39,7 @@ from .weights import VoxelWeights
 
 log = logging.getLogger(__name__)
 
-__all__ = ["TrackingObservation", "track_options_of"]
+__all__ = ["TrackingObservation", "track_options_of", "tracking_observation"]
 
 
 def track_options_of(flow) -> tuple[TrackOptions, tuple, str]:
@@ -119,3 +119,16 @@ class TrackingObservation:
         flat = u.reshape(-1, 3 * self.n_model).T                  # (3 n_model, k)
         out = (self.matrix @ flat).T
         return out.reshape(lead + (self.N, 3))
+
+
+def tracking_observation(bundle, flow, tracking_mesh, model_mesh):
+    """The tracker's observation operator for a flow of `bundle` tracked on `tracking_mesh`
+    (a path or a TetMesh), for a model on the TetMesh `model_mesh`."""
+    from ..mesh import read_mesh
+
+    opts, stride, window = track_options_of(flow)
+    tm = tracking_mesh if hasattr(tracking_mesh, "points") else read_mesh(tracking_mesh, required=())
+    if tm.n_nodes != flow.sizes.get("node") or not np.allclose(tm.points, flow.X.values, rtol=0, atol=1e-9):
+        raise ValueError(f"{tm.path} is not the mesh the flow was tracked on (its nodes differ)")
+    return TrackingObservation.build(bundle.frame(0), bundle.grid, tm.points, tm.cells, model_mesh.points,
+                                     model_mesh.cells, opts, stride, window)
