@@ -47,10 +47,10 @@ def main(argv=None):
     from liverinv.identify.objective import Measurements, Objective
     from liverinv.identify.optimize import Fit
     from liverinv.imaging.bundle import open_bundle
-    from validate_tables import model_mesh_path
+    from exact_motion import model_mesh_path
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--flow", type=Path, required=True, help="flow file (tracked, or validate_tables --exact-motion)")
+    ap.add_argument("--flow", type=Path, required=True, help="flow file (tracked, or benchmarks/exact_motion.py)")
     ap.add_argument("--bundle", type=Path, required=True, help="bundle with the indenter record")
     ap.add_argument("--model-mesh", default=str(COARSE), help="a mesh file or a liverinv.meshgen preset")
     ap.add_argument("--law", default="PE")

@@ -57,10 +57,17 @@ class atomic_path:
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
+            os.chmod(self.tmp, 0o666 & ~umask())   # mkstemp makes 0600: give the umask's mode
             os.replace(self.tmp, self.path)
         else:
             self.tmp.unlink(missing_ok=True)
         return False
+
+
+def umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def write_netcdf(ds, path) -> Path:

@@ -45,10 +45,12 @@ PHYSICAL_GROUPS = {"bottom": (2, 1), "side": (2, 2), "top_free": (2, 3), "footpr
 #: 9.2 mm indentation of the elastic benchmark law in felupe. Meshes with a rim much finer
 #: than the footprint (e.g. h_rim = 1.2 mm with an unrefined disk) showed a local snap at
 #: the rim near d = 8.4 mm that stops Newton's method.
+#: ``tiny``, 630 nodes / 327 tet10: fast enough for the workflow's quick study and tests.
 #: ``medium``, 3494 nodes / 2102 tet10: the fine rim and footprint with a coarser far field, an
 #: inverse-model mesh for data simulated on ``cylinder_fine.msh`` (small-strain stiffness
 #: 19.21 N/m; coarse 19.94, fine 19.07).
 PRESETS = {
+    "tiny": {"h_far": 0.03, "h_rim": 0.004},  # 630 nodes / 327 tet10: the quick study's mesh
     "coarse": {"h_far": 0.022, "h_rim": 0.0025},  # = the defaults of generate_indentation_mesh
     "medium": {"h_far": 0.016, "h_rim": 0.0015, "h_footprint": 0.0017},
     "fine": {"h_far": 0.013, "h_rim": 0.0015, "h_footprint": 0.0017, "dist_max": 0.035},

@@ -106,25 +106,36 @@ def plot_fits(fits, out, truth=None, labels=None):
 def export_fields(run, out):
     """ParaView collection (.pvd) of the displacement field of a run file: one VTU per
     frame in the folder `<out stem>_frames/` beside it, written whole or not at all."""
+    import xarray as xr
+
+    with xr.open_dataset(run, engine="h5netcdf") as ds:
+        X, cells = ds.X.values, ds.cells.values
+        u, t = ds.u.values, ds.time.values
+    return write_vtu_series(out, X, cells, t, lambda k: {"u": u[k]})
+
+
+def write_vtu_series(out, points, cells, times, point_data):
+    """ParaView collection `out` (.pvd) of tet10 VTU files, one per time, in the folder
+    `<out stem>_frames/` beside it; `point_data(k)` gives frame k's fields. Written whole or
+    not at all (the frames go to a temporary folder renamed at the end)."""
     import shutil
     import tempfile
 
     import meshio
-    import xarray as xr
+
+    from .fileio import umask
 
     out = Path(out)
-    with xr.open_dataset(run, engine="h5netcdf") as ds:
-        X, cells = ds.X.values, ds.cells.values
-        u, t = ds.u.values, ds.time.values
     out.parent.mkdir(parents=True, exist_ok=True)
     frames = out.with_name(out.stem + "_frames")
     tmpdir = Path(tempfile.mkdtemp(prefix=f".{frames.name}.", dir=out.parent))
     try:
         entries = []
-        for k in range(len(t)):
+        for k, t in enumerate(times):
             name = f"frame_{k:04d}.vtu"
-            meshio.write(tmpdir / name, meshio.Mesh(X, [("tetra10", cells)], point_data={"u": u[k]}))
-            entries.append(f'    <DataSet timestep="{t[k]:.9g}" file="{frames.name}/{name}"/>')
+            meshio.write(tmpdir / name, meshio.Mesh(points, [("tetra10", cells)], point_data=point_data(k)))
+            entries.append(f'    <DataSet timestep="{t:.9g}" file="{frames.name}/{name}"/>')
+        tmpdir.chmod(0o777 & ~umask())
         if frames.exists():
             shutil.rmtree(frames)
         tmpdir.rename(frames)

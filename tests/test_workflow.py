@@ -1,40 +1,182 @@
-"""The Snakemake workflow end to end on a tiny study (a small version of the default run)."""
+"""The Snakemake workflow: study validation, the paper studies' fan-out, lint, the SLURM
+profile, and a reduced quick study end to end (truth, render, track, fits, gather, tables,
+figures)."""
 
+import json
 import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 import xarray as xr
 
 from conftest import COARSE
 
 ROOT = Path(__file__).resolve().parents[1]
+needs_snakemake = pytest.mark.skipif(shutil.which("snakemake") is None, reason="snakemake not installed")
 
 
-@pytest.mark.skipif(shutil.which("snakemake") is None, reason="snakemake not installed")
-def test_workflow_runs_a_tiny_study(tmp_path):
-    study = tmp_path / "tiny.yaml"
-    study.write_text(f"mesh: {COARSE}\nlaw: elastic\nparams: {{C1: 200.0, C2: 5000.0, D1: 1.5e-3}}\n"
-                     "loading: {control: displacement, depth: 1.0e-3, rate: 2.0e-3, steps: 2, unload: true}\n")
-    cfg = tmp_path / "config.yaml"
-    cfg.write_text(f"studies:\n  tiny: {study}\nresults: {tmp_path / 'results'}\n")
-    p = subprocess.run(["snakemake", "--snakefile", str(ROOT / "Snakefile"), "--configfile", str(cfg),
-                        "--directory", str(tmp_path), "--cores", "1", "--quiet"],
-                       capture_output=True, text=True)
+def snakemake(*args, cwd=ROOT):
+    return subprocess.run(["snakemake", "--snakefile", str(ROOT / "Snakefile"), *map(str, args)],
+                          capture_output=True, text=True, cwd=cwd)
+
+
+def write_study(path, **over):
+    """A valid workflow study (quick's truth on the tiny preset), with keys replaced."""
+    spec = {"truth": str(ROOT / "config/truths/quick.yaml"), "truth_mesh": "tiny", "mesh": "tiny",
+            "fit": {"laws": ["elastic"], "seeds": {"a": {"C1": 140.0, "C2": 6500.0, "D1": 1.05e-3}}}}
+    for k, v in over.items():
+        if v is None:
+            spec.pop(k, None)
+        elif k == "fit":
+            spec["fit"] = {**spec["fit"], **v}
+        else:
+            spec[k] = v
+    import yaml
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
+@pytest.mark.parametrize("over, key, words", [
+    (dict(fit={"laws": ["elastik"]}), "fit/laws", "unknown law 'elastik'"),
+    (dict(tracking={"iterations": 3}), "(top level)", "allowed keys"),
+    (dict(fit={"method": ["least-squares"]}), "fit", "allowed keys"),
+    (dict(truth=None, bundle="nowhere.h5"), "bundle", "not found"),
+    (dict(bundle="x.h5"), "(top level)", "exactly one of 'truth'"),
+    (dict(fit={"seeds": {"a": {"C1": -5.0, "C2": 6500.0, "D1": 1e-3}}}), "fit/seeds/a", "outside its bounds"),
+    (dict(fit={"seeds": {"a": {"C1": 140.0, "kapa": 1e-7}}}), "fit/seeds/a", "unknown parameter"),
+    (dict(fit={"seeds": {"a": {"C1": 140.0, "g1": 0.3}}}), "fit/seeds/a", "belong to none of the laws"),
+    (dict(fit={"seeds": {"a_b": {"C1": 140.0}}}), "fit/seeds", "does not match"),
+    (dict(fit={"methods": ["simplex"]}), "fit/methods/0", "is not one of"),
+    (dict(mesh="cylinder.msh"), "mesh", "neither a mesh file"),
+])
+def test_bad_studies_are_refused_naming_the_file_and_the_key(tmp_path, over, key, words):
+    from liverinv.pipeline.spec import load_workflow_study
+    from liverinv.study import StudyError
+    path = write_study(tmp_path / "bad.yaml", **over)
+    with pytest.raises(StudyError) as e:
+        load_workflow_study(path)
+    msg = str(e.value)
+    assert msg.startswith(f"{path}: {key}:") and words in msg, msg
+
+
+def test_fit_jobs_and_their_options_follow_the_study(tmp_path):
+    from liverinv.pipeline.spec import load_workflow_study
+    s = load_workflow_study(write_study(tmp_path / "s.yaml", fit={
+        "laws": ["elastic", "SR"], "methods": ["least-squares", "nelder-mead"], "design_points": 8,
+        "seeds": {"a": {"C1": 140.0, "g1": 0.3}, "b": {"C1": 260.0}}, "fixed": {"SR": {"tau_g1": 0.2}}}))
+    assert [j.tag for j in s.fit_jobs()][:3] == ["elastic_a_least-squares", "elastic_a_nelder-mead",
+                                                 "elastic_b_least-squares"]
+    assert len(s.fit_jobs()) == 8
+    sr = s.fit_arguments(next(j for j in s.fit_jobs() if j.tag == "SR_a_least-squares"))
+    assert "--start=g1=0.3" in sr and "--fixed=tau_g1=0.2" in sr and "--design-points" in sr
+    assert not any(a.startswith("--start=tau_g1") for a in sr)          # held fixed, not started
+    assert "--start=D1=0.0015" in sr                                    # the law's default
+    nm = s.fit_arguments(next(j for j in s.fit_jobs() if j.tag == "SR_a_nelder-mead"))
+    assert "--design-points" not in nm
+    assert s.truth_params() == {"C1": 200.0, "C2": 5000.0, "D1": 1.5e-3}
+
+
+@needs_snakemake
+@pytest.mark.parametrize("study, jobs", [
+    ("paper-table1", {"truth": 1, "render": 1, "track": 1, "mesh": 1, "fit": 3, "gather": 1, "tables": 1,
+                      "convergence": 1, "figures": 1}),
+    ("paper-table2", {"truth": 1, "render": 1, "track": 1, "mesh": 1, "fit": 3, "gather": 1, "tables": 1,
+                      "convergence": 1, "figures": 1}),
+    ("paper-table3", {"truth": 1, "render": 1, "track": 1, "fit": 5, "gather": 1, "tables": 1,
+                      "convergence": 5, "figures": 1}),
+    ("paper-table1,paper-table2", {"truth": 1, "render": 1, "track": 1, "mesh": 1, "fit": 6, "gather": 2,
+                                   "tables": 2, "convergence": 2, "figures": 2}),
+])
+def test_dry_run_of_the_paper_studies_fans_out(tmp_path, study, jobs):
+    p = snakemake("-n", "--cores", "2", "--config", f"study={study}", f"results={tmp_path}/results")
     assert p.returncode == 0, p.stderr[-3000:]
-    out = tmp_path / "results" / "tiny"
-    assert (out / "force_displacement.png").stat().st_size > 10_000
-    assert (out / "fields.pvd").exists() and len(list((out / "fields_frames").glob("*.vtu"))) == 5
-    ds = xr.open_dataset(out / "run.nc", engine="h5netcdf")
-    assert ds.indenter_force.values.max() > 0.01
+    table = p.stdout[p.stdout.index("Job stats"):].splitlines()[3:]
+    table = table[:next(i for i, ln in enumerate(table) if ln.startswith("total"))]
+    counts = {ln.split()[0]: int(ln.split()[1]) for ln in table}
+    assert {k: v for k, v in counts.items() if k != "all"} == jobs
 
 
-@pytest.mark.skipif(shutil.which("snakemake") is None, reason="snakemake not installed")
-def test_workflow_rejects_a_bad_config_before_any_work(tmp_path):
+@needs_snakemake
+def test_slurm_profile_dry_run():
+    pytest.importorskip("snakemake_executor_plugin_slurm")
+    p = snakemake("--profile", ROOT / "workflow/profiles/slurm", "--config", "study=paper-table3", "-n")
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert "fit" in p.stdout and "Job stats" in p.stdout
+
+
+@needs_snakemake
+def test_lint_is_clean():
+    p = snakemake("--lint", "--config", "study=quick")
+    assert p.returncode == 0 and "Congratulations, your workflow is in a good condition!" in (p.stdout + p.stderr), \
+        (p.stdout + p.stderr)[-3000:]
+
+
+@needs_snakemake
+def test_a_bad_study_stops_the_workflow_before_any_job(tmp_path):
+    bad = write_study(tmp_path / "bad.yaml", fit={"laws": ["elastik"]})
     cfg = tmp_path / "config.yaml"
-    cfg.write_text("studies: {}\n")
-    p = subprocess.run(["snakemake", "--snakefile", str(ROOT / "Snakefile"), "--configfile", str(cfg),
-                        "--directory", str(tmp_path), "--cores", "1", "-n"], capture_output=True, text=True)
-    assert p.returncode != 0 and "studies" in (p.stdout + p.stderr)
+    cfg.write_text(f"study: bad\nstudies: {{bad: {bad}}}\nresults: {tmp_path / 'results'}\n")
+    p = snakemake("--configfile", cfg, "--cores", "1", "-n")
+    assert p.returncode != 0 and "unknown law 'elastik'" in (p.stdout + p.stderr)
     assert not (tmp_path / "results").exists()
+
+
+@needs_snakemake
+def test_reduced_quick_study_end_to_end(tmp_path):
+    """The quick study's stages on fewer, smaller volumes: every output is written, the fits
+    recover the truth, a failed fit is a row, not a stop; a second run does nothing."""
+    truth = tmp_path / "truth.yaml"
+    truth.write_text((ROOT / "config/truths/quick.yaml").read_text()
+                     .replace("../../../shared/benchmark/cylinder_coarse.msh", str(COARSE))
+                     .replace("frames: 31", "frames: 16").replace("frame_rate_hz: 5", "frame_rate_hz: 2.5")
+                     .replace("shape: [128, 48, 204]", "shape: [96, 40, 150]"))
+    study = write_study(tmp_path / "mini.yaml", truth=str(truth), fit={
+        "laws": ["elastic"], "seeds": {"low": {"C1": 140.0, "C2": 6500.0, "D1": 1.05e-3},
+                                       "high": {"C1": 260.0, "C2": 3500.0, "D1": 1.95e-3}}})
+    cfg = tmp_path / "config.yaml"
+    res = tmp_path / "results"
+    cfg.write_text(f"study: mini\nstudies: {{mini: {study}}}\nresults: {res}\n")
+    p = snakemake("--configfile", cfg, "--cores", "2", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-4000:]
+    ds = xr.load_dataset(res / "mini/fits.nc", engine="h5netcdf")
+    assert dict(ds.sizes)["seed"] == 2 and list(ds.law.values) == ["elastic"]
+    err = ds.best.sel(param=["C1", "C2", "D1"]) / ds.truth.sel(param=["C1", "C2", "D1"]) - 1
+    assert float(abs(err).max()) < 0.05, err.values
+    assert (ds.status.values != "failed").all()
+    assert json.loads(ds.attrs["fit_files"]) and len(ds.attrs["study_sha256"]) == 64
+    md = (res / "mini/table.md").read_text()
+    assert "## elastic" in md and "(140)" in md
+    for f in ("figures/convergence_elastic.png", "figures/indenter.png", "figures/velocities.png"):
+        assert (res / "mini" / f).stat().st_size > 20_000, f
+    import meshio
+    pvd = (res / "mini/figures/fields.pvd").read_text()
+    frames = sorted((res / "mini/figures/fields_frames").glob("*.vtu"))
+    assert len(frames) == 15 and pvd.count("<DataSet") == 15
+    point_data = meshio.read(frames[3]).point_data
+    assert set(point_data) == {"v_tracked", "v_model", "v_difference", "confidence"}
+    assert np.allclose(point_data["v_difference"], point_data["v_tracked"] - point_data["v_model"])
+    # rerunning a finished study does nothing
+    again = snakemake("--configfile", cfg, "--cores", "2", "-n", cwd=tmp_path)
+    assert again.returncode == 0 and "Nothing to be done" in (again.stdout + again.stderr)
+
+
+def test_a_failed_fit_is_recorded_and_gathered_as_a_failed_row(tmp_path):
+    from liverinv.cli import main
+    from liverinv.pipeline.gather import gather_fits
+    from liverinv.pipeline.spec import FitJob, load_workflow_study
+    from liverinv.pipeline.tables import fit_table, markdown_table
+    out = tmp_path / "elastic_a_least-squares.nc"
+    rc = main(["fit", "--bundle", str(tmp_path / "none.h5"), "--flow", str(tmp_path / "none.nc"), "--mesh",
+               str(COARSE), "--law", "elastic", "--start=C1=140", "--keep-going", "--out", str(out)])
+    assert rc == 0
+    failed = xr.load_dataset(out, engine="h5netcdf")
+    assert failed.attrs["status"] == "failed" and "bundle file not found" in failed.attrs["error"]
+    s = load_workflow_study(write_study(tmp_path / "s.yaml"))
+    ds = gather_fits(s, {FitJob("elastic", "a", "least-squares"): out})
+    assert str(ds.status.sel({"law": "elastic", "seed": "a", "method": "least-squares"}).values) == "failed"
+    assert np.isnan(ds.best.values).all() and float(ds.start.sel(param="C1").squeeze()) == 140.0
+    row = fit_table(ds).iloc[0]
+    assert row.status == "failed" and "not found" in row.message
+    assert "**failed**" in markdown_table(ds) and "failed: " in markdown_table(ds)

@@ -54,10 +54,28 @@ def register(sub):
     p.add_argument("--checkpoint", help="folder for the evaluation log; an interrupted fit resumes from it")
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
     p.add_argument("--out", required=True, help="fit file (netCDF)")
+    p.add_argument("--keep-going", action="store_true",
+                   help="if the fit fails, write a fit file that records the failure (status 'failed', the "
+                        "error) and exit 0, so that a workflow's other fits go on and its table says so")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    if not args.keep_going:
+        return _run(args)
+    try:
+        return _run(args)
+    except Exception as e:   # recorded, not raised: one failed seed must not stop a study
+        from ..fileio import provenance, write_netcdf
+        import xarray as xr
+        msg = str(e) if isinstance(e, UserError) else f"{type(e).__name__}: {e}"
+        write_netcdf(xr.Dataset(attrs=provenance(status="failed", error=msg, law=args.law, method=args.method,
+                                                 start=args.start, fixed=args.fixed)), args.out)
+        print(f"liverinv fit: failed ({msg}); recorded in {args.out}", file=sys.stderr)
+        return 0
+
+
+def _run(args) -> int:
     import xarray as xr
     from tqdm import tqdm
 

@@ -38,6 +38,14 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
     groups = fit.obj.residual_groups() if noise is not None else None
     unc = gauss_newton(jacobian, ev.residual, fit.obj.M, fit.log_scale, groups=groups)
     units = [PARAMS[k].unit for k in names]
+    # the misfit at the first stage's noise levels (the sensor's and the flow's estimate, the
+    # same for every law on the same data): the balanced levels are each fit's own
+    a_vol = a_ind = 1.0
+    stages = result.get("stages") or []
+    if len(stages) == 2:
+        a_vol = stages[1]["tracking_m"] / stages[0]["tracking_m"]
+        a_ind = stages[1]["force_N"] / stages[0]["force_N"]
+    common = {"long_name": "misfit at the first stage's noise levels: comparable between laws on the same data"}
     phi_units = "1" if noise is not None else "m^2/s^2"
     ds = xr.Dataset(
         data_vars=dict(
@@ -54,6 +62,9 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
             phi=((), ev.phi, {"units": phi_units}),
             phi_vol=((), ev.phi_vol, {"units": phi_units}),
             phi_ind=((), ev.phi_ind, {"units": phi_units}),
+            phi_vol_common=((), ev.phi_vol * a_vol ** 2, {"units": phi_units, **common}),
+            phi_ind_common=((), ev.phi_ind * a_ind ** 2, {"units": phi_units, **common}),
+            phi_common=((), ev.phi_vol * a_vol ** 2 + ev.phi_ind * a_ind ** 2, {"units": phi_units, **common}),
             rms_depth=((), ev.rms_depth, {"units": "m", "long_name": "RMS indenter displacement error"}),
             rms_axial=((), ev.rms_axial, {"units": "m", "long_name": "RMS axial nodal displacement error"}),
             rms_force=((), getattr(ev, "rms_force", np.nan), {"units": "N", "long_name": "RMS indenter force error"}),
@@ -61,6 +72,9 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
             n_ind=((), int(fit.obj.M), {"long_name": "indenter residuals"}),
             at_bound=("param", _at_bound(fit, x_best)),
             residual=("residual_index", ev.residual),
+            model_time=("drive", ev.model_time, {"units": "s", "long_name": "driving times of the model"}),
+            model_depth=("drive", ev.model_depth, {"units": "m", "long_name": "model indenter depth at the optimum"}),
+            model_force=("drive", ev.model_force, {"units": "N", "long_name": "model indenter force at the optimum"}),
             v_fem=(("frame", "node", "component"), ev.v_fem, {"units": "m/s", "long_name": "model nodal velocity at the optimum"}),
             cov_x=(("param", "param2"), unc["cov_x"], {"long_name": "covariance of normalized parameters (log10 for log-scaled)"}),
             corr=(("param", "param2"), unc["corr"]),

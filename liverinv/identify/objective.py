@@ -104,6 +104,9 @@ class Evaluation:
     v_fem: np.ndarray | None = None   # (K, N, 3) model nodal velocities
     iterations: int = 0
     jacobian: np.ndarray | None = None  # (n_residuals, k) d residual / d direction, if asked
+    model_time: np.ndarray | None = None   # s, the driving times
+    model_depth: np.ndarray | None = None  # m, the model's indenter depth at them
+    model_force: np.ndarray | None = None  # N, the model's indenter force at them
 
 
 class Objective:
@@ -303,7 +306,8 @@ class Objective:
                 jac[r_vol.size:, i] = self._indenter_residual(h.ddepth[:, i], h.dforce[:, i], derivative=True)
         return Evaluation(dict(params), True, phi_vol + phi_ind, phi_vol, phi_ind, rms_depth, rms_axial,
                           rms_force, _time.perf_counter() - t_start, "", np.concatenate([r_vol, r_ind]), v_fem,
-                          int(h.iterations.sum()), jac)
+                          int(h.iterations.sum()), jac, np.asarray(self.t_drive, float),
+                          np.asarray(h.depth, float), np.asarray(h.force, float))
 
     def _indenter_residual(self, depth, force, derivative=False):
         """The indenter block of the residual for a model depth and force at the driving

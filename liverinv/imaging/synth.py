@@ -130,8 +130,19 @@ def _truth(study, im, base_dir, source):
     return simulate_study(study, Path(base_dir), extra_times=_frame_times(study, im, base_dir, source))
 
 
-def synthesize(study: dict, base_dir, out, truth_out=None, source="study"):
-    """Run the truth simulation, render the sequence and write the bundle (and the truth).
+def simulate_truth(study: dict, base_dir, source="study"):
+    """The truth simulation of a study with an imaging section (its frames simulated), with
+    the provenance a truth file carries."""
+    from ..fileio import provenance
+    im = imaging_config(study, source)
+    ds = _truth(study, im, base_dir, source)
+    ds.attrs.update(provenance(role="truth", imaging=im))
+    return ds
+
+
+def synthesize(study: dict, base_dir, out, truth_out=None, source="study", truth=None):
+    """Run the truth simulation (or take `truth`, a Dataset from `simulate_truth` of the same
+    study), render the sequence and write the bundle (and the truth).
 
     Returns the truth Dataset.
     """
@@ -149,7 +160,7 @@ def synthesize(study: dict, base_dir, out, truth_out=None, source="study"):
                               transducer=transducer)
     except (TypeError, ValueError) as e:
         raise _err(f"{source}: imaging: {e}") from None
-    ds = _truth(study, im, base_dir, source)
+    ds = _truth(study, im, base_dir, source) if truth is None else truth
     t_sim = ds["time"].values
     times = _frame_times(study, im, base_dir, source, t_end=float(t_sim[-1]))
     X, cells = ds["X"].values, ds["cells"].values

@@ -1,0 +1,37 @@
+"""`liverinv tables`: a study's gathered fits (fits.nc) as table.csv and table.md."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def register(sub):
+    p = sub.add_parser("tables", help="tables of a study's gathered fits (CSV and Markdown)", description=__doc__)
+    p.add_argument("fits", type=Path, help="gathered fits (liverinv gather)")
+    p.add_argument("--csv", type=Path, required=True)
+    p.add_argument("--md", type=Path, required=True)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import xarray as xr
+
+    from ..cli import UserError
+    from ..fileio import atomic_path
+    from ..pipeline.tables import fit_table, markdown_table
+
+    if not args.fits.is_file():
+        raise UserError(f"{args.fits}: file not found")
+    with xr.open_dataset(args.fits, engine="h5netcdf") as ds:
+        ds = ds.load()
+    with atomic_path(args.csv) as tmp:
+        fit_table(ds).to_csv(tmp, index=False)
+    md = markdown_table(ds)
+    with atomic_path(args.md) as tmp:
+        tmp.write_text(md)
+    print(md)
+    bad = ds.status.values[ds.status.values != "ok"]
+    if bad.size:
+        print(f"warning: {bad.size} of {ds.status.size} fits are flagged or failed; see {args.md}", file=sys.stderr)
+    return 0

@@ -1,0 +1,1 @@
+"""The workflow's library side: studies, gathering fits, tables and figures."""

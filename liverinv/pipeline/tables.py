@@ -1,0 +1,122 @@
+"""A study's tables from its gathered fits (`fits.nc`), in the paper's layout: recovered value
+with the start in parentheses, the error against the truth where known, Phi, Phi_ind, Phi_vol,
+and a status column that keeps a flagged or failed fit from passing as a clean number."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+__all__ = ["fit_table", "markdown_table", "ranking"]
+
+
+def _law_params(ds, law):
+    return [str(p) for p in ds.param.values if np.isfinite(ds.start.sel(law=law, param=p).values).any()]
+
+
+def fit_table(ds: xr.Dataset) -> pd.DataFrame:
+    """One row per fit (law, method, seed): numbers only, for a CSV."""
+    rows = []
+    for law in ds.law.values:
+        params = _law_params(ds, law)
+        for method in ds.method.values:
+            for seed in ds.seed.values:
+                f = ds.sel({"law": law, "seed": seed, "method": method})
+                row = dict(law=str(law), method=str(method), seed=str(seed), status=str(f.status.values),
+                           flags=str(f.flags.values), message=str(f.message.values))
+                for p in params:
+                    b, t = float(f.best.sel(param=p)), float(ds.truth.sel(param=p))
+                    row[p] = b
+                    row[f"{p}_start"] = float(f.start.sel(param=p))
+                    row[f"{p}_rel_sd"] = float(f.rel_sd.sel(param=p))
+                    row[f"{p}_error"] = b / t - 1 if np.isfinite(t) and t != 0 else np.nan
+                for k in ("phi", "phi_ind", "phi_vol", "phi_common", "phi_ind_common", "phi_vol_common", "rms_depth", "rms_axial", "rms_force", "n_solves", "solve_time_s"):
+                    row[k] = float(f[k])
+                rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _g(v, fmt=".4g"):
+    return "-" if not np.isfinite(v) else format(v, fmt)
+
+
+def markdown_table(ds: xr.Dataset) -> str:
+    """The paper's layout per law; flags below each table."""
+    df = fit_table(ds)
+    units = dict(zip([str(p) for p in ds.param.values], [str(u) for u in ds.param_unit.values]))
+    phi_u = ds.phi.attrs.get("units", "")
+    out = [f"# Study `{ds.attrs.get('study', '')}`: fits\n",
+           f"Objective: {ds.attrs.get('objective', '')} (Phi {'dimensionless' if phi_u == '1' else 'in ' + phi_u}). Each cell: recovered value "
+           "(start), and the error against the truth where it is known. Status `flagged` or `failed` "
+           "means the number is not to be used as it stands; the reasons follow each table.\n"]
+    for law in ds.law.values:
+        params = _law_params(ds, law)
+        sub = df[df.law == law]
+        head = ["method", "seed"] + [f"{p} ({units[p]})" for p in params] + ["Phi", "Phi_ind", "Phi_vol", "solves",
+                                                                              "solve time (s)", "status"]
+        out += [f"\n## {law}\n", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        notes = []
+        for _, r in sub.iterrows():
+            cells = [r.method, r.seed]
+            for p in params:
+                c = f"{_g(r[p])} ({_g(r[p + '_start'])})"
+                if np.isfinite(r[p + "_error"]):
+                    c += f" {100 * r[p + '_error']:+.1f} %"
+                cells.append(c)
+            cells += [_g(r.phi), _g(r.phi_ind), _g(r.phi_vol), _g(r.n_solves, ".0f"), _g(r.solve_time_s, ".0f"),
+                      f"**{r.status}**" if r.status != "ok" else "ok"]
+            out.append("| " + " | ".join(str(c) for c in cells) + " |")
+            if r.status == "flagged":
+                notes.append(f"- {r.method} seed {r.seed}: {r['flags']}")
+            elif r.status == "failed":
+                notes.append(f"- {r.method} seed {r.seed}: failed: {r.message}")
+        if notes:
+            out += ["", "Flags:", *notes]
+    rk = ranking(ds)
+    if rk is not None:
+        out += ["\n## Ranking of the laws by Phi_vol (best fit of each law, at the common noise levels)\n",
+                _plain_markdown(rk)]
+    return "\n".join(out) + "\n"
+
+
+def ranking(ds: xr.Dataset) -> pd.DataFrame | None:
+    """The laws ordered by their best Phi_vol (over seeds and methods, fits not failed) at the
+    common noise levels (the balance stage's levels are each fit's own), set beside the
+    paper's values where the study gives them; None with a single law."""
+    if ds.sizes["law"] < 2:
+        return None
+    paper = json.loads(ds.attrs.get("paper", "{}") or "{}")
+    rows = []
+    for law in ds.law.values:
+        f = ds.sel(law=law)
+        ok = (f.status != "failed").values
+        pv = np.where(ok, f.phi_vol_common.values, np.nan)
+        if not np.isfinite(pv).any():
+            rows.append(dict(law=str(law), phi_vol=np.nan, phi_ind=np.nan, phi=np.nan, status="failed"))
+            continue
+        j, k = np.unravel_index(np.nanargmin(pv), pv.shape)
+        g = f.isel({"seed": j, "method": k})
+        rows.append(dict(law=str(law), phi_vol=float(g.phi_vol_common), phi_ind=float(g.phi_ind_common),
+                         phi=float(g.phi_common),
+                         status=str(g.status.values)))
+    df = pd.DataFrame(rows).sort_values("phi_vol", na_position="last").reset_index(drop=True)
+    df.insert(1, "rank", np.arange(1, len(df) + 1))
+    df["phi_vol_vs_best"] = df.phi_vol / df.phi_vol.min()
+    if paper:
+        pv = {law: v.get("phi_vol", np.nan) for law, v in paper.items()}
+        order = sorted((v, law) for law, v in pv.items() if np.isfinite(v))
+        prank = {law: r + 1 for r, (_, law) in enumerate(order)}
+        df["paper_phi_vol"] = [pv.get(law, np.nan) for law in df.law]
+        df["paper_rank"] = [prank.get(law, np.nan) for law in df.law]
+    return df
+
+
+def _plain_markdown(df: pd.DataFrame) -> str:
+    cols = list(df.columns)
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for _, r in df.iterrows():
+        lines.append("| " + " | ".join(_g(v) if isinstance(v, float) else str(v) for v in r) + " |")
+    return "\n".join(lines)
