@@ -10,7 +10,7 @@ import sys
 
 from .errors import UserError  # re-exported for the command modules
 
-COMMANDS = ["simulate", "plot", "synthesize", "track", "fit", "register", "gather", "tables", "figures"]
+COMMANDS = ["simulate", "plot", "synthesize", "track", "fit", "register", "gather", "tables", "figures", "importdata"]
 
 
 def build_parser() -> argparse.ArgumentParser:
