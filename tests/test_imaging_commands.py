@@ -169,3 +169,65 @@ def test_simulated_truth_has_an_equilibrium_state_at_every_frame(tmp_path):
     assert len(t.time) == 4 * 2 + 1 + 3                 # 4 steps per ramp + the 3 frames after t = 0
     with open_bundle(tmp_path / "b.h5") as b:
         np.testing.assert_allclose(b.time_s, frames)
+
+
+def test_fits_refuse_stale_checkpoints_drop_torn_lines_and_never_crash(tmp_path, synthesized):
+    bundle, _ = synthesized
+    flow = tmp_path / "f.nc"
+    p = _parser()
+    a = p.parse_args(["track", str(bundle), "--mesh", str(MESH), "--out", str(flow)])
+    assert a.func(a) == 0
+    ck, out = tmp_path / "ck", tmp_path / "fit.nc"
+    base = ["fit", "--bundle", str(bundle), "--mesh", str(MESH), "--law", "elastic", "--start", "C1=150",
+            "--fixed", "D1=1.5e-3", "--fixed", "C2=5000", "--max-evaluations", "2", "--checkpoint", str(ck)]
+    a = p.parse_args(base + ["--flow", str(flow), "--out", str(out)])
+    assert a.func(a) == 0
+    first = xr.load_dataset(out)
+    # another flow with the same checkpoint: refused, nothing written
+    f = xr.load_dataset(flow)
+    f["u_of"] = f.u_of * 1.01
+    f.to_netcdf(tmp_path / "other.nc", engine="h5netcdf")
+    a = p.parse_args(base + ["--flow", str(tmp_path / "other.nc"), "--out", str(tmp_path / "x.nc")])
+    with pytest.raises(UserError, match=r"written for other inputs \(differs in: flow\)"):
+        a.func(a)
+    assert not (tmp_path / "x.nc").exists()
+    # a torn last line (a kill while writing) is dropped and that solve redone: same result
+    log = ck / "evaluations.jsonl"
+    lines = log.read_text().splitlines(keepends=True)
+    log.write_text("".join(lines[:-1]) + lines[-1][: len(lines[-1]) // 2])
+    a = p.parse_args(base + ["--flow", str(flow), "--out", str(out)])
+    assert a.func(a) == 0
+    again = xr.load_dataset(out)
+    assert float(again.phi) == pytest.approx(float(first.phi), rel=1e-9)
+    assert len(log.read_text().splitlines()) == len(lines)
+    # --fresh-checkpoint sets the stale one aside
+    a = p.parse_args(base + ["--flow", str(tmp_path / "other.nc"), "--out", str(tmp_path / "x.nc"),
+                             "--fresh-checkpoint"])
+    assert a.func(a) == 0 and (tmp_path / "ck.stale-1" / "evaluations.jsonl").exists()
+    # a start on a log-scaled bound: one line
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(flow), "--mesh", str(MESH), "--law", "elastic",
+                      "--start", "C2=0", "--out", str(tmp_path / "y.nc")])
+    with pytest.raises(UserError, match="start C2=0: a log-scaled parameter needs a start above 0"):
+        a.func(a)
+    # every solve fails: the fit file says so and the command fails with one line
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(flow), "--mesh", str(MESH), "--law", "elastic",
+                      "--objective", "paper", "--start", "C1=0.02", "--start", "C2=1", "--fixed", "D1=1.5e-3",
+                      "--max-evaluations", "1", "--out", str(tmp_path / "z.nc")])
+    with pytest.raises(UserError, match="no forward solve succeeded"):
+        a.func(a)
+    assert xr.load_dataset(tmp_path / "z.nc").attrs["status"] == "failed"
+    # a flow without confident nodes (mesh outside the images): refused unless --indenter-only
+    f = xr.load_dataset(flow)
+    f["c_of"] = f.c_of * 0.0
+    f.to_netcdf(tmp_path / "blind.nc", engine="h5netcdf")
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(tmp_path / "blind.nc"), "--mesh", str(MESH),
+                      "--law", "elastic", "--out", str(tmp_path / "w.nc")])
+    with pytest.raises(UserError, match="only 0 tracked nodes have confidence"):
+        a.func(a)
+    a = p.parse_args(["fit", "--bundle", str(bundle), "--flow", str(tmp_path / "blind.nc"), "--mesh", str(MESH),
+                      "--law", "elastic", "--objective", "paper", "--fixed", "D1=1.5e-3", "--fixed", "C2=5000",
+                      "--start", "C1=150", "--max-evaluations", "1", "--indenter-only", "--out", str(tmp_path / "w.nc")])
+    assert a.func(a) == 0
+    assert float(xr.load_dataset(tmp_path / "w.nc").phi_vol) == 0.0
+    with pytest.raises(SystemExit):
+        p.parse_args(base + ["--flow", str(flow), "--out", str(out), "--max-evaluations", "0"])

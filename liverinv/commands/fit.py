@@ -12,6 +12,17 @@ from ..cli import UserError
 from . import parse_assignments
 
 
+def _positive_int(text):
+    import argparse
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{v} is not >= 1")
+    return v
+
+
 def register(sub):
     p = sub.add_parser("fit", help="identify material parameters (Nelder-Mead or least squares)",
                        description=__doc__)
@@ -39,7 +50,7 @@ def register(sub):
     p.add_argument("--start", action="append", default=[], metavar="NAME=VALUE", help="start value (repeatable)")
     p.add_argument("--fixed", action="append", default=[], metavar="NAME=VALUE", help="held fixed (repeatable)")
     p.add_argument("--method", choices=["nelder-mead", "least-squares"], default="least-squares")
-    p.add_argument("--max-evaluations", type=int, default=None,
+    p.add_argument("--max-evaluations", type=_positive_int, default=None,
                    help="Nelder-Mead: forward solves; least squares: residual evaluations per run")
     p.add_argument("--design-points", type=int, default=0, metavar="N",
                    help="least squares with a global stage (laws with several minima, e.g. SR): short "
@@ -54,10 +65,22 @@ def register(sub):
     p.add_argument("--checkpoint", help="folder for the evaluation log; an interrupted fit resumes from it")
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
     p.add_argument("--out", required=True, help="fit file (netCDF)")
+    p.add_argument("--fresh-checkpoint", action="store_true",
+                   help="if --checkpoint holds solves of other inputs, set it aside (renamed *.stale-N) and start anew")
+    p.add_argument("--indenter-only", action="store_true",
+                   help="fit the indenter record alone when the flow has too few confident nodes for a "
+                        "volumetric term (otherwise refused)")
     p.add_argument("--keep-going", action="store_true",
                    help="if the fit fails, write a fit file that records the failure (status 'failed', the "
                         "error) and exit 0, so that a workflow's other fits go on and its table says so")
     p.set_defaults(func=run)
+
+
+MIN_CONFIDENT_NODES = 10   # fewer confident tracked nodes give no volumetric term worth the name
+
+
+class FitFailed(UserError):
+    """No forward solve succeeded; the fit file with status 'failed' is written."""
 
 
 def run(args) -> int:
@@ -65,14 +88,36 @@ def run(args) -> int:
         return _run(args)
     try:
         return _run(args)
+    except FitFailed as e:
+        print(f"liverinv fit: {e}", file=sys.stderr)
+        return 0
     except Exception as e:   # recorded, not raised: one failed seed must not stop a study
-        from ..fileio import provenance, write_netcdf
-        import xarray as xr
         msg = str(e) if isinstance(e, UserError) else f"{type(e).__name__}: {e}"
-        write_netcdf(xr.Dataset(attrs=provenance(status="failed", error=msg, law=args.law, method=args.method,
-                                                 start=args.start, fixed=args.fixed)), args.out)
+        _write_failed(args, msg)
         print(f"liverinv fit: failed ({msg}); recorded in {args.out}", file=sys.stderr)
         return 0
+
+
+def _write_failed(args, msg, history=None):
+    import xarray as xr
+
+    from ..fileio import provenance, write_netcdf
+    ds = xr.Dataset(attrs=provenance(status="failed", error=msg, law=args.law, method=args.method,
+                                     start=args.start, fixed=args.fixed))
+    if history:
+        ds["history_message"] = ("evaluation", [str(r.get("message", "")) for r in history])
+        ds["history_wall_s"] = ("evaluation", [float(r["wall_s"]) for r in history], {"units": "s"})
+    write_netcdf(ds, args.out)
+
+
+def _binding(args, law, fixed, noise, flow_path):
+    """What the checkpoint's solves depend on: the data and meshes (hashes), law and options."""
+    from ..fileio import file_sha256
+    return dict(bundle=file_sha256(args.bundle), flow=file_sha256(flow_path), mesh=file_sha256(args.mesh),
+                model_mesh=file_sha256(args.model_mesh) if args.model_mesh else "",
+                law=law, fixed=fixed, objective=args.objective, observation=args.observation,
+                quadrature_order=args.quadrature_order, noise=noise.to_json() if noise is not None else "",
+                indenter_only=bool(args.indenter_only))
 
 
 def _run(args) -> int:
@@ -83,7 +128,6 @@ def _run(args) -> int:
     from ..forward import ForwardModel
     from ..identify.fitfile import fit_dataset
     from ..identify.objective import Measurements, Objective
-    from ..identify.optimize import Fit
     from ..imaging.bundle import open_bundle
     from ..imaging.observation import tracking_observation
     from ..laws import LawError, get_law
@@ -101,6 +145,15 @@ def _run(args) -> int:
                 raise UserError(f"{path}: {what} file not found")
         with xr.open_dataset(args.flow, engine="h5netcdf") as flow:
             flow = flow.load()
+        if "u_of" not in flow or "c_of" not in flow:
+            raise UserError(f"{args.flow}: not a flow file (liverinv track writes one); it has no u_of/c_of")
+        n_conf = int((flow.c_of.values.min(axis=(0, 2)) > 0).sum())
+        if n_conf < MIN_CONFIDENT_NODES and not args.indenter_only:
+            raise UserError(f"{args.flow}: only {n_conf} tracked nodes have confidence > 0 (need "
+                            f"{MIN_CONFIDENT_NODES}): the mesh may lie outside the images or the volumes have no "
+                            "texture (see liverinv check); --indenter-only fits the indenter record alone")
+        if args.indenter_only:
+            flow["c_of"] = flow.c_of * 0.0
         fm = ForwardModel(args.model_mesh or args.mesh, quadrature_order=args.quadrature_order)
         if not args.model_mesh and flow.sizes.get("node") != fm.mesh.n_nodes:
             raise UserError(f"{args.flow} has {flow.sizes.get('node')} nodes, {args.mesh} "
@@ -118,6 +171,9 @@ def _run(args) -> int:
                 noise = noise_model(ind, flow, args.noise_force, args.noise_depth, args.noise_tracking)
         obj = Objective(fm, args.law, Measurements.from_flow(flow, t_ind, depth, force), fixed=fixed,
                         observation=observation, noise=noise)
+        binding = _binding(args, args.law, fixed, noise, args.flow)
+        if args.checkpoint and args.fresh_checkpoint:
+            _set_aside_if_stale(Path(args.checkpoint), binding)
     except (LawError, MeshError, ValueError, KeyError, OSError) as e:
         raise UserError(str(e)) from None
     bar = tqdm(desc=f"fit {args.law}", unit="solve", disable=None)
@@ -129,8 +185,59 @@ def _run(args) -> int:
         bar.update(1)
         bar.set_postfix(phi=f"{best[0]:.3e}", refresh=False)
 
+    from ..identify.optimize import CheckpointMismatch
+    try:
+        fit, result, jac = _optimize(args, obj, start, progress, binding)
+    except (CheckpointMismatch, ValueError) as e:
+        bar.close()
+        raise UserError(str(e)) from None
+    bar.close()
+    if result["best"] is None:
+        errors = [r.get("message", "") for r in fit.history if r.get("message")]
+        msg = (f"no forward solve succeeded in {len(fit.history)} solves (first error: "
+               f"{errors[0][:200] if errors else 'none reported'})")
+        _write_failed(args, msg, fit.history)
+        raise FitFailed(f"{msg}; wrote status 'failed' to {args.out}")
+    ds = fit_dataset(fit, result, jac, attrs=dict(bundle=str(args.bundle), flow=str(args.flow),
+                                                   mesh=str(args.mesh), mesh_sha256=file_sha256(args.mesh),
+                                                   model_mesh=str(args.model_mesh or args.mesh),
+                                                   observation=args.observation,
+                                                   stages=json.dumps(result.get("stages", [])),
+                                                   jacobian=args.jacobian if args.method == "least-squares" else "",
+                                                   indenter_only=int(args.indenter_only),
+                                                   model_mesh_sha256=file_sha256(args.model_mesh or args.mesh)))
+    write_netcdf(ds, args.out)
+    best_p = ", ".join(f"{k}={v:.4g}" for k, v in zip(ds.param.values, ds.best.values))
+    print(f"wrote {args.out}: {best_p}; Phi = {float(ds.phi):.4g} (vol {float(ds.phi_vol):.4g}, "
+          f"ind {float(ds.phi_ind):.4g}) after {ds.attrs['n_solves']} forward solves")
+    for line in filter(None, ds.attrs["warnings"].split("\n")):
+        print(f"warning: {line}", file=sys.stderr)
+    return 0
+
+
+def _set_aside_if_stale(ckpt: Path, binding):
+    import json as _json
+    f = ckpt / "binding.json"
+    if not ckpt.exists():
+        return
+    try:
+        same = f.exists() and _json.loads(f.read_text()) == _json.loads(_json.dumps(binding))
+    except ValueError:
+        same = False
+    if same or not any(ckpt.iterdir()):
+        return
+    k = 1
+    while ckpt.with_name(f"{ckpt.name}.stale-{k}").exists():
+        k += 1
+    ckpt.rename(ckpt.with_name(f"{ckpt.name}.stale-{k}"))
+    print(f"liverinv fit: checkpoint {ckpt} held solves of other inputs; moved to {ckpt.name}.stale-{k}",
+          file=sys.stderr)
+
+
+def _optimize(args, obj, start, progress, binding):
+    from ..identify.optimize import Fit
     if args.method == "nelder-mead":
-        fit = Fit(obj, start, checkpoint=args.checkpoint, progress=progress)
+        fit = Fit(obj, start, checkpoint=args.checkpoint, progress=progress, binding=binding)
         result = fit.nelder_mead(max_evaluations=args.max_evaluations or 400)
         jac = None
     else:
@@ -145,20 +252,7 @@ def _run(args) -> int:
                                       probe_evaluations=args.probe_evaluations, jacobian=args.jacobian)
             return fit.least_squares(max_evaluations=n_max, jacobian=args.jacobian)
 
-        fit, result = balanced_fit(obj, start, run_least_squares, checkpoint=args.checkpoint, progress=progress)
+        fit, result = balanced_fit(obj, start, run_least_squares, checkpoint=args.checkpoint, progress=progress,
+                                   binding=binding)
         jac = result.get("jacobian")
-    bar.close()
-    ds = fit_dataset(fit, result, jac, attrs=dict(bundle=str(args.bundle), flow=str(args.flow),
-                                                   mesh=str(args.mesh), mesh_sha256=file_sha256(args.mesh),
-                                                   model_mesh=str(args.model_mesh or args.mesh),
-                                                   observation=args.observation,
-                                                   stages=json.dumps(result.get("stages", [])),
-                                                   jacobian=args.jacobian if args.method == "least-squares" else "",
-                                                   model_mesh_sha256=file_sha256(args.model_mesh or args.mesh)))
-    write_netcdf(ds, args.out)
-    best_p = ", ".join(f"{k}={v:.4g}" for k, v in zip(ds.param.values, ds.best.values))
-    print(f"wrote {args.out}: {best_p}; Phi = {float(ds.phi):.4g} (vol {float(ds.phi_vol):.4g}, "
-          f"ind {float(ds.phi_ind):.4g}) after {ds.attrs['n_solves']} forward solves")
-    for line in filter(None, ds.attrs["warnings"].split("\n")):
-        print(f"warning: {line}", file=sys.stderr)
-    return 0
+    return fit, result, jac

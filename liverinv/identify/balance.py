@@ -26,13 +26,13 @@ __all__ = ["balanced_fit"]
 log = logging.getLogger(__name__)
 
 
-def balanced_fit(objective, start, run, checkpoint=None, progress=None, tol=0.25):
+def balanced_fit(objective, start, run, checkpoint=None, progress=None, tol=0.25, binding=None):
     """`run(fit, x0)` (an optimizer of `Fit`, from the start when x0 is None) with the
     objective's noise levels, then once more from its optimum with the balanced levels.
 
     Returns (fit, result) of the last stage; `result["stages"]` lists the noise levels and
     solve counts of each stage."""
-    fit = Fit(objective, start, checkpoint=checkpoint, progress=progress)
+    fit = Fit(objective, start, checkpoint=checkpoint, progress=progress, binding=binding)
     result = run(fit, None)
     if objective.noise is None or result["best"] is None:
         return fit, result
@@ -57,7 +57,8 @@ def balanced_fit(objective, start, run, checkpoint=None, progress=None, tol=0.25
     if not moved:
         result["stages"] = [stage1]
         return fit, result
-    fit2 = Fit(objective.with_noise(balanced), start, checkpoint=checkpoint, progress=progress, tag="balanced")
+    fit2 = Fit(objective.with_noise(balanced), start, checkpoint=checkpoint, progress=progress, tag="balanced",
+               binding=binding)
     _carry_over(fit, fit2, n_vol, noise.tracking_m / balanced.tracking_m, noise.force_N / balanced.force_N)
     result2 = run(fit2, x)
     result2["message"] = (f"{result2['message']} (balanced: tracking noise x{np.sqrt(lam_vol):.3g}, force "

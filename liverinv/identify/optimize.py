@@ -11,7 +11,10 @@ Least squares takes its Jacobian from the forward solve's parameter sensitivitie
 Checkpoint: a folder with `evaluations.jsonl` (one line per forward solve),
 `residual_<n>.npy` and, for solves with sensitivities, `jacobian_<n>.npy`. A resumed fit replays the deterministic optimizer from the same start;
 solves already in the checkpoint are read back instead of recomputed, so the path and the
-result are those of an uninterrupted run.
+result are those of an uninterrupted run. `binding.json` records what the solves depend on
+(hashes of the data and meshes, the law, the objective's options); a resume with anything
+different is refused (`CheckpointMismatch`). A torn last line (a kill while writing) is dropped
+and that solve done again.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from scipy import optimize
 from ..laws import PARAMS, get_law
 from .objective import Objective
 
-__all__ = ["Fit", "FAILED_PHI"]
+__all__ = ["Fit", "FAILED_PHI", "CheckpointMismatch"]
 
 log = logging.getLogger(__name__)
 
@@ -35,11 +38,18 @@ FAILED_PHI = 1e3  # m^2/s^2: penalty of a failed forward solve of the paper's Ph
                   # real misfit); objectives may set their own `failed_phi`
 
 
+class CheckpointMismatch(ValueError):
+    """A checkpoint written for other data, meshes, law or options."""
+
+
 class Fit:
-    """Identify the free parameters `names` of `objective.law` from `start`."""
+    """Identify the free parameters `names` of `objective.law` from `start`.
+
+    `binding` (JSON-able dict: hashes of the inputs, the law, the options) is written into a
+    new checkpoint and must match an existing one."""
 
     def __init__(self, objective: Objective, start: dict, names=None, checkpoint=None,
-                 progress=None, tag=""):
+                 progress=None, tag="", binding=None):
         self.obj = objective
         law = get_law(objective.law)
         self.names = list(names or [n for n in law.free if n not in objective.fixed])
@@ -51,6 +61,10 @@ class Fit:
         self.log_scale = np.array([PARAMS[n].scale == "log" for n in self.names])
         lo = np.array([PARAMS[n].lower for n in self.names], float)
         hi = np.array([PARAMS[n].upper for n in self.names], float)
+        at_zero = [n for n, ls in zip(self.names, self.log_scale) if ls and self.start[n] <= 0]
+        if at_zero:
+            raise ValueError(f"start {', '.join(f'{n}={self.start[n]:g}' for n in at_zero)}: a log-scaled "
+                             "parameter needs a start above 0 (to hold it at 0, fix it: --fixed NAME=0)")
         lo = np.where(self.log_scale & (lo <= 0), np.maximum(1e-12, 1e-6 * np.array(list(self.start.values()))), lo)
         self.lo, self.hi = self.to_x(lo), self.to_x(hi)
         self.history: list[dict] = []   # one record per distinct forward solve of this fit
@@ -66,7 +80,32 @@ class Fit:
         self.failed_phi = float(getattr(objective, "failed_phi", FAILED_PHI))
         if self.ckpt:
             self.ckpt.mkdir(parents=True, exist_ok=True)
+            self._bind(binding)
             self._load_checkpoint()
+
+    def _bind(self, binding):
+        if binding is None:
+            return
+        f = self.ckpt / "binding.json"
+        binding = json.loads(json.dumps(binding))
+        if f.exists():
+            try:
+                old = json.loads(f.read_text())
+            except json.JSONDecodeError:
+                old = None
+            if old != binding:
+                old = old or {}
+                diff = sorted(k for k in set(old) | set(binding) if old.get(k) != binding.get(k))
+                raise CheckpointMismatch(
+                    f"checkpoint {self.ckpt} was written for other inputs (differs in: {', '.join(diff)}); "
+                    "use another --checkpoint folder, or --fresh-checkpoint to set this one aside")
+            return
+        if (self.ckpt / "evaluations.jsonl").exists():
+            raise CheckpointMismatch(f"checkpoint {self.ckpt} records no inputs (written by an older liverinv): "
+                                     "use another --checkpoint folder, or --fresh-checkpoint")
+        tmp = f.with_suffix(".part")
+        tmp.write_text(json.dumps(binding, indent=1, sort_keys=True))
+        tmp.replace(f)
 
     # -- parameter maps ------------------------------------------------------------------
     def to_x(self, p):
@@ -89,8 +128,20 @@ class Fit:
         f = self.ckpt / "evaluations.jsonl"
         if not f.exists():
             return
-        for line in f.read_text().splitlines():
-            rec = json.loads(line)
+        lines = f.read_text().splitlines(keepends=True)
+        records = []
+        for i, line in enumerate(lines):
+            try:
+                records.append(json.loads(line))
+            except json.JSONDecodeError:
+                if i < len(lines) - 1:
+                    raise CheckpointMismatch(f"{f}: line {i + 1} of {len(lines)} is not a record: the "
+                                             "checkpoint is damaged; use --fresh-checkpoint") from None
+                log.warning("%s: the last line is torn (a kill while writing); dropped, that solve is redone", f)
+                tmp = f.with_suffix(".part")
+                tmp.write_text("".join(lines[:-1]))
+                tmp.replace(f)
+        for rec in records:
             self._n_records = max(self._n_records, rec["n"] + 1)
             if rec.get("tag", "") != self.tag:     # another stage's solve
                 continue
