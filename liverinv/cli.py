@@ -6,11 +6,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import signal
 import sys
+import threading
 
 from .errors import UserError  # re-exported for the command modules
 
-COMMANDS = ["simulate", "plot", "synthesize", "track", "fit", "register", "gather", "tables", "figures", "importdata"]
+COMMANDS = ["simulate", "plot", "synthesize", "track", "fit", "register", "gather", "tables", "figures", "importdata", "check"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -24,16 +26,75 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Interrupted(BaseException):
+    """SIGTERM, SIGHUP or SIGINT, raised in the main thread by `main`'s signal handler so that
+    every `with` block on the way out runs its cleanup (`fileio.atomic_path` removes its
+    temporary file, temporary folders go). A BaseException, so that no `except Exception`
+    (nor meshio's SystemExit guard) takes it for an error of the input."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signum).name
+
+
+_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n))
+
+
+def _raise_interrupted(signum, frame):
+    for s in _SIGNALS:            # a second signal must not interrupt the cleanup
+        signal.signal(s, signal.SIG_IGN)
+    raise Interrupted(signum)
+
+
+def _install_handlers() -> dict:
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    previous = {}
+    for s in _SIGNALS:
+        try:
+            previous[s] = signal.signal(s, _raise_interrupted)
+        except (OSError, ValueError):
+            pass
+    return previous
+
+
+def _restore_handlers(previous: dict):
+    for s, h in previous.items():
+        signal.signal(s, h if h is not None else signal.SIG_DFL)
+
+
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    previous = _install_handlers()
+    command = "?"
     try:
-        return int(args.func(args) or 0)
-    except UserError as e:
-        print(f"liverinv {args.command}: error: {e}", file=sys.stderr)
-        return 2
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        command = args.command
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                            format="%(levelname)s %(name)s: %(message)s")
+        try:
+            return int(args.func(args) or 0)
+        except UserError as e:
+            print(f"liverinv {command}: error: {e}", file=sys.stderr)
+            return 2
+        except OSError as e:
+            # output writes are turned into UserErrors by fileio.atomic_path; this is the
+            # rest (a folder that cannot be made, a file opened directly): one line, no traceback
+            where = e.filename if getattr(e, "filename", None) is not None else None
+            why = e.strerror or " ".join(str(e).split())
+            print(f"liverinv {command}: error: " + (f"{where}: {why}" if where else why), file=sys.stderr)
+            return 2
+    except (Interrupted, KeyboardInterrupt) as e:
+        signum = e.signum if isinstance(e, Interrupted) else signal.SIGINT
+        name = signal.Signals(signum).name
+        print(f"liverinv {command}: interrupted ({name}); no partial output left", file=sys.stderr)
+        return 128 + int(signum)
+    finally:
+        _restore_handlers(previous)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ from .fem.solver import NewtonOptions
 from .forward import ForwardModel, force_history_of
 from .loading import LoadHistory, ramp_history, read_force_history
 
-__all__ = ["load_study", "validate_study", "history_of", "simulate_study", "StudyError"]
+__all__ = ["load_study", "validate_study", "validate_imaging", "history_of", "simulate_study", "StudyError"]
 
 SCHEMA = Path(__file__).parent / "schemas" / "study.schema.yaml"
 
@@ -36,17 +36,65 @@ _Loader.add_implicit_resolver(
     list("-+0123456789."))
 
 
-def validate_study(study: dict, source="study") -> dict:
+_TYPE_NAMES = {"object": "a mapping", "array": "a list", "number": "a number",
+               "integer": "an integer", "string": "a string", "boolean": "true or false",
+               "null": "null"}
+
+
+def _schema() -> dict:
+    return yaml.safe_load(SCHEMA.read_text())
+
+
+def _describe(e) -> str:
+    """One readable sentence for a jsonschema error: unknown keys with the allowed ones,
+    a value outside an enum with the allowed values, a range or type violated."""
+    kind, val, inst = e.validator, e.validator_value, e.instance
+    if kind == "additionalProperties" and isinstance(inst, dict):
+        allowed = list(e.schema.get("properties", {}))
+        unknown = [k for k in inst if k not in allowed]
+        keys = ", ".join(repr(k) for k in unknown)
+        return (f"unknown key{'s' if len(unknown) > 1 else ''} {keys}; "
+                f"allowed keys: {', '.join(allowed)}")
+    if kind == "enum":
+        return f"{inst!r} is not allowed; allowed values: {', '.join(str(v) for v in val)}"
+    if kind == "type":
+        types = val if isinstance(val, list) else [val]
+        return f"{inst!r} is not {' or '.join(_TYPE_NAMES.get(t, t) for t in types)}"
+    ops = {"minimum": ">=", "exclusiveMinimum": ">", "maximum": "<=", "exclusiveMaximum": "<"}
+    if kind in ops:
+        return f"{inst!r} is out of range; it must be {ops[kind]} {val}"
+    if kind in ("minItems", "maxItems"):
+        lo, hi = e.schema.get("minItems"), e.schema.get("maxItems")
+        n = f"exactly {lo}" if lo == hi else (f"at least {lo}" if kind == "minItems" else f"at most {hi}")
+        return f"{inst!r} has {len(inst)} item(s); it needs {n}"
+    if kind == "required":
+        missing = [k for k in val if isinstance(inst, dict) and k not in inst]
+        return f"missing key {', '.join(repr(k) for k in missing)}"
+    return e.message
+
+
+def _check(instance, schema, source) -> None:
     import jsonschema
 
-    schema = yaml.safe_load(SCHEMA.read_text())
-    v = jsonschema.Draft202012Validator(schema)
-    errors = sorted(v.iter_errors(study), key=lambda e: list(e.path))
+    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(instance),
+                    key=lambda e: [str(p) for p in e.path])
     if errors:
         e = errors[0]
         where = "/".join(str(p) for p in e.path) or "(top level)"
-        raise StudyError(f"{source}: {where}: {e.message}")
+        raise StudyError(f"{source}: {where}: {_describe(e)}")
+
+
+def validate_study(study: dict, source="study") -> dict:
+    """`study` checked against `schemas/study.schema.yaml`; StudyError naming `source`, the
+    key path (e.g. imaging/volume) and what is allowed there."""
+    _check(study, _schema(), source)
     return study
+
+
+def validate_imaging(imaging, source="study") -> None:
+    """The `imaging:` section alone checked against its part of the study schema."""
+    sub = _schema()["properties"]["imaging"]
+    _check({"imaging": imaging}, {"type": "object", "properties": {"imaging": sub}}, source)
 
 
 def load_study(path) -> tuple[dict, Path]:

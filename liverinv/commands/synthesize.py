@@ -26,10 +26,18 @@ def register(subparsers):
     p.set_defaults(func=run)
 
 
+def bundle_bytes(im: dict) -> int:
+    """About the size of the bundle an imaging config writes (volumes, uncompressed)."""
+    import numpy as np
+    shape = im["volume"].get("shape", (128, 48, 204))
+    return int(im["frames"] * np.prod(shape) * np.dtype(im["storage"]).itemsize)
+
+
 def run(args) -> int:
     from ..cli import UserError
     from ..fem.solver import ConvergenceError
-    from ..imaging.synth import simulate_truth, synthesize
+    from ..fileio import check_writable
+    from ..imaging.synth import imaging_config, simulate_truth, synthesize
     from ..laws import LawError
     from ..mesh import MeshError
     from ..study import StudyError, load_study
@@ -40,6 +48,11 @@ def run(args) -> int:
         raise UserError("--out (the bundle to write) is required unless --truth-only")
     try:
         study, base = load_study(args.study)  # paths in a study are relative to its file
+        # before the simulation: a folder that cannot be written (or a full disk) fails now
+        if args.truth_out is not None:
+            check_writable(args.truth_out)
+        if not args.truth_only:
+            check_writable(args.out, need_bytes=bundle_bytes(imaging_config(study, str(args.study))))
         if args.mesh is not None:
             study = {**study, "mesh": str(args.mesh.resolve())}
         if args.truth_only:

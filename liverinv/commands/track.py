@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import logging
 from pathlib import Path
 
@@ -61,11 +63,14 @@ def read_tracking_mesh(path: Path):
 
 def run(args) -> int:
     from ..cli import UserError
-    from ..fileio import file_sha256, provenance, write_netcdf
+    from ..fileio import check_writable, file_sha256, provenance, write_netcdf
     from ..imaging.bundle import open_bundle
     from ..imaging.flow import track_bundle
     from ..imaging.tracking import TrackOptions
 
+    for out in (args.out, args.picture):  # before tracking: a folder we cannot write fails now
+        if out is not None:
+            check_writable(out)
     points, cells = read_tracking_mesh(args.mesh)
     if args.iterations < 1 or min(args.stride) < 1 or args.interpolated_iterations < 0:
         raise UserError("--iterations and --stride must be >= 1, --interpolated-iterations >= 0")
@@ -75,6 +80,12 @@ def run(args) -> int:
     with open_bundle(args.bundle) as b:
         if b.n_frames < 2:
             raise UserError(f"{args.bundle}: /volumes/data holds {b.n_frames} volume; tracking needs 2")
+        from ..imaging.placement import check_placement
+        rep = check_placement(b, points)
+        if rep.problems:
+            raise UserError(rep.problems[0] + " (liverinv check draws the placement)")
+        for w in rep.warnings:
+            print(f"warning: {w}", file=sys.stderr)
         ds = track_bundle(b, points, cells, opts, stride=tuple(args.stride), frames=args.frames,
                           window=args.window)
         ds.attrs.update(provenance(bundle=str(args.bundle), bundle_sha256=file_sha256(args.bundle),

@@ -20,7 +20,9 @@ The study's `imaging:` section (all keys optional; SI units)::
       transducer: {centre_frequency_hz: 3.0e6, sigma_m: [1.0e-3, 1.2e-3, 0.45e-3],
                    dynamic_range_db: 50}
       indenter: {rate_hz: 100, noise: false}   # noise: the paper's 3.9 um / 13 mN RMS
-      storage: uint16          # uint16 | float32
+      storage: uint16          # uint16 | uint8 | float32 | float64
+
+Keys, types and ranges: the `imaging` part of `liverinv/schemas/study.schema.yaml`.
 """
 
 from __future__ import annotations
@@ -43,10 +45,6 @@ __all__ = ["synthesize", "imaging_config", "PAPER_NOISE"]
 
 PAPER_NOISE = {"displacement_m": 3.9e-6, "force_N": 13e-3}   # section 2.1.1, with controller
 
-_KEYS = {"truth", "mode", "seed", "frames", "frame_rate_hz", "volume", "scatterers_per_cell",
-         "bmode_noise", "noise_db", "decorrelation", "transducer", "indenter", "storage",
-         "analytic"}
-
 
 def _err(msg):
     from ..cli import UserError
@@ -54,33 +52,34 @@ def _err(msg):
 
 
 def imaging_config(study: dict, source="study") -> dict:
-    """The validated `imaging:` section with defaults filled in."""
+    """The `imaging:` section with defaults filled in.
+
+    Keys, types, ranges and allowed values are the study schema's (`schemas/study.schema.yaml`,
+    checked again here for studies that did not come through `load_study`); here only what a
+    schema does not say well: the options that apply to one mode only."""
+    from ..study import StudyError, validate_imaging
+    try:
+        validate_imaging(study.get("imaging"), source)
+    except StudyError as e:
+        raise _err(str(e)) from None
     im = dict(study.get("imaging") or {})
-    bad = set(im) - _KEYS
-    if bad:
-        raise _err(f"{source}: imaging: unknown key(s) {sorted(bad)}; allowed {sorted(_KEYS)}")
     im.setdefault("truth", "simulate")
-    if im["truth"] not in ("simulate", "analytic"):
-        raise _err(f"{source}: imaging.truth is {im['truth']!r}; allowed 'simulate', 'analytic'")
     im.setdefault("mode", "warp")
-    if im["mode"] not in ("warp", "scatter"):
-        raise _err(f"{source}: imaging.mode is {im['mode']!r}; allowed 'warp', 'scatter'")
-    im.setdefault("seed", 0)
-    im.setdefault("frames", 20)
-    if not isinstance(im["frames"], int) or im["frames"] < 2:
-        raise _err(f"{source}: imaging.frames must be an integer >= 2, got {im['frames']!r}")
+    im["seed"] = int(im.get("seed", 0))
+    im["frames"] = int(im.get("frames", 20))
     im.setdefault("frame_rate_hz", None)
     im.setdefault("volume", {})
     im.setdefault("indenter", {})
     im.setdefault("storage", "uint16")
-    if im["storage"] not in ("uint16", "float32"):
-        raise _err(f"{source}: imaging.storage is {im['storage']!r}; allowed 'uint16', 'float32'")
+    if im["mode"] == "warp" and (im.get("noise_db") is not None or im.get("decorrelation", 0) > 0):
+        raise _err(f"{source}: imaging: noise_db and decorrelation apply to mode 'scatter'; "
+                   "use bmode_noise with mode 'warp'")
     return im
 
 
 def make_grid(vol: dict, source="study") -> ImageGrid:
     try:
-        shape = tuple(vol.get("shape", (128, 48, 204)))
+        shape = tuple(int(n) for n in vol.get("shape", (128, 48, 204)))
         spacing = tuple(float(s) for s in vol.get("spacing_m", (0.5e-3, 0.5e-3, 0.3e-3)))
         if len(shape) != 3 or len(spacing) != 3 or min(spacing) <= 0 or min(shape) < 4:
             raise ValueError
