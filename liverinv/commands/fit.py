@@ -76,9 +76,6 @@ def register(sub):
     p.set_defaults(func=run)
 
 
-MIN_CONFIDENT_NODES = 10   # fewer confident tracked nodes give no volumetric term worth the name
-
-
 class FitFailed(UserError):
     """No forward solve succeeded; the fit file with status 'failed' is written."""
 
@@ -121,56 +118,23 @@ def _binding(args, law, fixed, noise, flow_path):
 
 
 def _run(args) -> int:
-    import xarray as xr
     from tqdm import tqdm
 
     from ..fileio import file_sha256, write_netcdf
-    from ..forward import ForwardModel
     from ..identify.fitfile import fit_dataset
-    from ..identify.objective import Measurements, Objective
-    from ..imaging.bundle import open_bundle
-    from ..imaging.observation import tracking_observation
+    from ..identify.setup import objective_from_files
     from ..laws import LawError, get_law
     from ..mesh import MeshError
 
     start, fixed = parse_assignments(args.start, "--start"), parse_assignments(args.fixed, "--fixed")
-    if args.observation is None:
-        args.observation = "tracker" if args.objective == "likelihood" else "nodes"
     try:
         law = get_law(args.law)
         start = {**{k: v for k, v in law.defaults.items() if k in law.free and k not in fixed}, **start}
         law.resolve({**start, **fixed})
-        for path, what in ((args.bundle, "bundle"), (args.flow, "flow")):
-            if not Path(path).is_file():
-                raise UserError(f"{path}: {what} file not found")
-        with xr.open_dataset(args.flow, engine="h5netcdf") as flow:
-            flow = flow.load()
-        if "u_of" not in flow or "c_of" not in flow:
-            raise UserError(f"{args.flow}: not a flow file (liverinv track writes one); it has no u_of/c_of")
-        n_conf = int((flow.c_of.values.min(axis=(0, 2)) > 0).sum())
-        if n_conf < MIN_CONFIDENT_NODES and not args.indenter_only:
-            raise UserError(f"{args.flow}: only {n_conf} tracked nodes have confidence > 0 (need "
-                            f"{MIN_CONFIDENT_NODES}): the mesh may lie outside the images or the volumes have no "
-                            "texture (see liverinv check); --indenter-only fits the indenter record alone")
-        if args.indenter_only:
-            flow["c_of"] = flow.c_of * 0.0
-        fm = ForwardModel(args.model_mesh or args.mesh, quadrature_order=args.quadrature_order)
-        if not args.model_mesh and flow.sizes.get("node") != fm.mesh.n_nodes:
-            raise UserError(f"{args.flow} has {flow.sizes.get('node')} nodes, {args.mesh} "
-                            f"{fm.mesh.n_nodes}: was it tracked on this mesh?")
-        with open_bundle(args.bundle) as b:
-            ind = b.indenter
-            t_ind, depth, force = ind.time_s, ind.displacement_m, ind.force_N
-            observation = None
-            if args.observation == "tracker":
-                tracking_mesh = args.mesh if args.model_mesh else fm.mesh   # read once if the same
-                observation = tracking_observation(b, flow, tracking_mesh, fm.mesh)
-            noise = None
-            if args.objective == "likelihood":
-                from ..identify.noise import noise_model
-                noise = noise_model(ind, flow, args.noise_force, args.noise_depth, args.noise_tracking)
-        obj = Objective(fm, args.law, Measurements.from_flow(flow, t_ind, depth, force), fixed=fixed,
-                        observation=observation, noise=noise)
+        obj, args.observation = objective_from_files(
+            args.bundle, args.flow, args.mesh, args.law, fixed, args.model_mesh, args.objective, args.observation,
+            args.noise_force, args.noise_depth, args.noise_tracking, args.quadrature_order, args.indenter_only)
+        noise = obj.noise
         binding = _binding(args, args.law, fixed, noise, args.flow)
         if args.checkpoint and args.fresh_checkpoint:
             _set_aside_if_stale(Path(args.checkpoint), binding)
