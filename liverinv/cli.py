@@ -12,7 +12,7 @@ import threading
 
 from .errors import UserError  # re-exported for the command modules
 
-COMMANDS = ["simulate", "plot", "synthesize", "track", "fit", "register", "gather", "tables", "figures", "importdata", "check"]
+COMMANDS = ["simulate", "plot", "synthesize", "track", "fit", "register", "gather", "tables", "figures", "importdata", "check", "diagnose", "discover"]
 
 
 def build_parser() -> argparse.ArgumentParser:

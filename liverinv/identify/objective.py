@@ -273,16 +273,25 @@ class Objective:
         """Phi and the residuals at `params`; with `directions` (parameter sets moved by `eps`
         along each direction from `params`), also the residual's derivatives along them from
         the solve's sensitivities (`fem.sensitivity`), `Evaluation.jacobian`."""
-        t_start = _time.perf_counter()
         full = {**params, **self.fixed}
-        d = self.data
         try:
             model = self.forward.model(self.law, full)
-            sens = None
+            variants = None
             if directions is not None:
                 variants = [model.with_params(self.forward.element_params(self.law, {**p, **self.fixed}))
                             for p in directions]
-                sens = Sensitivity(variants, eps)
+        except ValueError as e:
+            return Evaluation(dict(params), False, np.nan, np.nan, np.nan, message=str(e))
+        return self.evaluate_model(params, model, variants, eps)
+
+    def evaluate_model(self, params: dict, model, variants=None, eps=None) -> Evaluation:
+        """Phi and the residuals of a built forward `model` (any parameter set, e.g. an
+        extended law at its null values), with the residual's derivatives along the
+        `variants` (the same model with parameters moved by `eps`) when given."""
+        t_start = _time.perf_counter()
+        d = self.data
+        try:
+            sens = Sensitivity(variants, eps) if variants is not None else None
             h = solve_history(model, self.t_drive, self.f_drive, self.control, self.options, sensitivity=sens)
         except (ConvergenceError, FloatingPointError, ValueError) as e:
             return Evaluation(dict(params), False, np.nan, np.nan, np.nan,

@@ -1,0 +1,71 @@
+"""`liverinv diagnose`: which physical effect is missing from a fit (score tests at each
+candidate effect's null value, from one forward solve with sensitivities)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def register(sub):
+    p = sub.add_parser("diagnose", help="rank the physical effects missing from a fitted law", description=__doc__)
+    p.add_argument("--fit", type=Path, required=True, help="fit file (liverinv fit)")
+    p.add_argument("--bundle", type=Path, required=True)
+    p.add_argument("--flow", type=Path, required=True)
+    p.add_argument("--mesh", type=Path, required=True, help="tracking mesh")
+    p.add_argument("--model-mesh", type=Path, help="forward-model mesh (default: the fit's)")
+    p.add_argument("--observation", choices=["nodes", "tracker"], help="default: the fit's")
+    p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
+    p.add_argument("--effects", nargs="+", help="candidates (default: every available effect the law lacks)")
+    p.add_argument("--out", type=Path, required=True, help="DIAG.nc")
+    p.add_argument("--figures", type=Path, help="folder for the diagnosis figure")
+    p.set_defaults(func=run)
+
+
+def objective_of_fit(fit, bundle, flow, mesh, model_mesh=None, observation=None, quadrature_order=2):
+    """The objective a fit file was fitted with (its law, fixed values, objective, noise levels
+    after the balance stage, observation, model mesh), and the fit's best parameters."""
+    from ..cli import UserError
+    from ..identify.setup import objective_from_files
+    import xarray as xr
+    if not Path(fit).is_file():
+        raise UserError(f"{fit}: fit file not found")
+    with xr.open_dataset(fit, engine="h5netcdf") as ds:
+        ds = ds.load()
+    if ds.attrs.get("status") == "failed" or "best" not in ds:
+        raise UserError(f"{fit}: the fit failed ({ds.attrs.get('error', 'no result')}): nothing to diagnose")
+    law = ds.attrs["law"]
+    fixed = json.loads(ds.attrs.get("fixed") or "{}")
+    noise = json.loads(ds.attrs["noise"]) if ds.attrs.get("noise") else None
+    mm = model_mesh or (ds.attrs.get("model_mesh") if ds.attrs.get("model_mesh") not in (None, "", str(mesh)) else None)
+    obj, _ = objective_from_files(bundle, flow, mesh, law, fixed, mm, ds.attrs.get("objective", "likelihood"),
+                                  observation or ds.attrs.get("observation") or None,
+                                  noise and noise["force_N"], noise and noise["depth_m"], noise and noise["tracking_m"],
+                                  quadrature_order)
+    params = {str(k): float(v) for k, v in zip(ds.param.values, ds.best.values)}
+    return obj, params, ds
+
+
+def run(args) -> int:
+    from ..cli import UserError
+    from ..diagnose.files import diagnosis_dataset, explain
+    from ..diagnose.score import diagnose
+    from ..fileio import write_netcdf
+    from ..laws import PARAMS
+
+    obj, params, ds = objective_of_fit(args.fit, args.bundle, args.flow, args.mesh, args.model_mesh,
+                                       args.observation, args.quadrature_order)
+    names = list(params)
+    try:
+        d = diagnose(obj, params, names, [PARAMS[n].scale == "log" for n in names], float(ds.phi_vol), args.effects)
+    except (ValueError, KeyError) as e:
+        raise UserError(str(e)) from None
+    out = diagnosis_dataset(d, fit=str(args.fit), base_law=obj.law, fit_phi_vol=float(ds.phi_vol))
+    write_netcdf(out, args.out)
+    if args.figures:
+        from ..diagnose.figures import plot_diagnosis
+        plot_diagnosis(out, args.figures / "diagnosis.png")
+    print(explain(d))
+    print(f"wrote {args.out}: recommended {d['recommended']} ({d['wall_s']:.1f} s, {d['n_directions']} directions "
+          f"in one solve); not tested: {', '.join(d['not_tested'])}")
+    return 0

@@ -1,0 +1,71 @@
+"""`liverinv discover`: fit a base law, diagnose it, add the recommended effect, refit, until
+nothing is recommended; writes DISCOVERY.nc (one step per added effect)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def register(sub):
+    p = sub.add_parser("discover", help="base fit, then diagnose / add / refit until nothing is missing",
+                       description=__doc__)
+    p.add_argument("--bundle", type=Path, required=True)
+    p.add_argument("--flow", type=Path, required=True)
+    p.add_argument("--mesh", type=Path, required=True, help="tracking mesh")
+    p.add_argument("--law", required=True, help="base law")
+    p.add_argument("--model-mesh", type=Path)
+    p.add_argument("--observation", choices=["nodes", "tracker"])
+    p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
+    p.add_argument("--start", action="append", default=[], metavar="NAME=VALUE")
+    p.add_argument("--max-steps", type=int, default=3)
+    p.add_argument("--out", type=Path, required=True, help="DISCOVERY.nc")
+    p.add_argument("--figures", type=Path, help="folder for the discovery figure")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from dataclasses import replace
+
+    from ..cli import UserError
+    from ..diagnose.discover import discover
+    from ..diagnose.files import discovery_dataset
+    from ..fileio import write_netcdf
+    from ..identify.setup import objective_from_files
+    from ..laws import LawError, get_law
+    from . import parse_assignments
+
+    try:
+        get_law(args.law)
+    except LawError as e:
+        raise UserError(str(e)) from None
+    if args.max_steps < 0:
+        raise UserError("--max-steps must be >= 0")
+    start = {**get_law(args.law).defaults, **parse_assignments(args.start, "--start")}
+
+    def objective_for(law, fixed, noise):
+        obj, _ = objective_from_files(args.bundle, args.flow, args.mesh, law, fixed, args.model_mesh, "likelihood",
+                                      args.observation, None if noise is None else noise.force_N,
+                                      None if noise is None else noise.depth_m,
+                                      None if noise is None else noise.tracking_m, args.quadrature_order)
+        if noise is not None:
+            obj = obj.with_noise(replace(obj.noise, sources=noise.sources))
+        return obj
+
+    try:
+        out = discover(objective_for, args.law, start, args.max_steps)
+    except ValueError as e:
+        raise UserError(str(e)) from None
+    ds = discovery_dataset(out, base_law=args.law, bundle=str(args.bundle), flow=str(args.flow), mesh=str(args.mesh),
+                           model_mesh=str(args.model_mesh or args.mesh),
+                           defaults="likelihood objective; multi-start (8 design points) for laws with relaxation; "
+                                    "noise levels of the base fit after its balance stage for every step; "
+                                    "scans and thresholds of liverinv.diagnose.score")
+    write_netcdf(ds, args.out)
+    if args.figures:
+        from ..diagnose.figures import plot_discovery
+        plot_discovery(ds, args.figures / "discovery.png")
+    for s in range(ds.sizes["step"]):
+        print(f"step {s}: {ds.law.values[s]}{' + ' + ds.added.values[s] if ds.added.values[s] else ''}: "
+              f"Phi_vol {float(ds.phi_vol[s]):.4g}, Phi_ind {float(ds.phi_ind[s]):.4g}")
+    print(f"wrote {args.out}: {ds.attrs['stopped_because']}")
+    return 0

@@ -1,0 +1,54 @@
+"""Diagnosis figures: the candidates' predicted drops with their p-values; the discovery's
+error falling step by step."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ..fileio import atomic_path
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def plot_diagnosis(ds, out):
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    y = np.arange(ds.sizes["effect"])
+    ax.barh(y, 100 * ds.predicted_drop.values, color=["tab:green" if e == ds.attrs["recommended"] else "0.6"
+                                                       for e in ds.effect.values])
+    for yi, p in zip(y, ds.p_value.values):
+        ax.text(0.5, yi, f"p = {p:.2g}", va="center", fontsize=8)
+    ax.set_yticks(y, ds.effect.values)
+    ax.invert_yaxis()
+    ax.set(xlabel="predicted drop of Phi (% of Phi_vol)", title=f"recommended: {ds.attrs['recommended']}")
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return out
+
+
+def plot_discovery(ds, out):
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 3.8))
+    x = ds.step.values
+    labels = ["base " + str(ds.law.values[0])] + [f"+ {a}" for a in ds.added.values[1:]]
+    ax.plot(x, ds.phi_vol.values, "o-", label="Phi_vol")
+    ax.plot(x, ds.phi_ind.values, "s--", label="Phi_ind")
+    ax.set_xticks(x, labels, rotation=15)
+    ax.set(yscale="log", ylabel="misfit (dimensionless, common noise levels)", title="discovery")
+    ax.legend()
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return out

@@ -1,0 +1,87 @@
+"""DIAG.nc and DISCOVERY.nc: the diagnosis and the discovery loop as xarray Datasets (the
+names are the contract of `liverinv diagnose` and `liverinv discover`)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import xarray as xr
+
+from ..fileio import provenance
+
+__all__ = ["diagnosis_dataset", "discovery_dataset", "explain"]
+
+
+def explain(d: dict, n=3) -> str:
+    """The top `n` candidates in plain words."""
+    lines = []
+    for row in d["rows"][:n]:
+        est = ", ".join(f"{k} = {v:.3g}" for k, v in row["estimate"].items())
+        verdict = ("recommended" if row["effect"] == d["recommended"] else
+                   "not recommended: " + ("its one-step estimate has the wrong sign" if not row["physical"] else
+                                          f"p = {row['p_value']:.2g} >= {d['alpha']}" if row["p_value"] >= d["alpha"]
+                                          else f"predicted drop {100 * row['predicted_drop']:.1f} % < "
+                                               f"{100 * d['min_drop']:.0f} % of Phi_vol"))
+        lines.append(f"{row['effect']}: {row['description']}. Adding it is predicted to remove "
+                     f"{100 * row['predicted_drop']:.1f} % of Phi_vol (p = {row['p_value']:.2g} after the scan's "
+                     f"correction){'; one-step estimate ' + est if est else ''}; it acts {row['where'].split(' (')[0]}. "
+                     f"{verdict}.")
+    return "\n".join(lines)
+
+
+def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
+    rows = d["rows"]
+    ds = xr.Dataset(
+        data_vars=dict(
+            predicted_drop=("effect", [r["predicted_drop"] for r in rows],
+                            {"long_name": "predicted drop of Phi as a fraction of the fit's Phi_vol", "units": "1"}),
+            p_value=("effect", [r["p_value"] for r in rows],
+                     {"long_name": "one-sided p-value, cluster-robust score test, Bonferroni over the scan"}),
+            p_value_raw=("effect", [r["p_value_raw"] for r in rows], {"long_name": "p-value before the scan correction"}),
+            statistic=("effect", [r["statistic"] for r in rows], {"long_name": "robust score statistic (physical sign)"}),
+            physical=("effect", [r["physical"] for r in rows]),
+            n_scan=("effect", [r["n_scan"] for r in rows]),
+            estimate=("effect", [json.dumps(r["estimate"]) for r in rows],
+                      {"long_name": "one-step estimate of the effect's parameters (JSON, SI)"}),
+            where=("effect", [r["where"] for r in rows]),
+            description=("effect", [r["description"] for r in rows]),
+        ),
+        coords=dict(effect=[r["effect"] for r in rows]),
+    )
+    ds.attrs = provenance(recommended=d["recommended"], alpha=d["alpha"], min_drop=d["min_drop"], scan=d["scan"],
+                          not_tested=d["not_tested"], n_directions=d["n_directions"], wall_s=d["wall_s"],
+                          phi=d["phi"], phi_vol=d["phi_vol"], phi_ind=d["phi_ind"], explanation=explain(d),
+                          method="score tests at the null from one forward solve with sensitivities, orthogonal "
+                                 "to the fitted parameters", **attrs)
+    return ds
+
+
+def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
+    steps = out["steps"]
+    nxt = [s.get("next", {}) for s in steps]
+    ds = xr.Dataset(
+        data_vars=dict(
+            added=("step", [s["added"] for s in steps], {"long_name": "effect added at this step"}),
+            law=("step", [s["law"] for s in steps]),
+            phi=("step", [s["phi"] for s in steps], {"units": "1"}),
+            phi_vol=("step", [s["phi_vol"] for s in steps], {"units": "1"}),
+            phi_ind=("step", [s["phi_ind"] for s in steps], {"units": "1"}),
+            predicted_drop=("step", [np.nan] + [n.get("predicted_drop_vol", np.nan) for n in nxt[:-1]],
+                            {"long_name": "drop of Phi_vol the diagnosis predicted for this step's effect (fraction)"}),
+            actual_drop=("step", [np.nan] + [n.get("actual_drop_vol", np.nan) for n in nxt[:-1]],
+                         {"long_name": "actual drop of Phi_vol (fraction of the previous step's)"}),
+            lr_p_value=("step", [np.nan] + [n.get("p_lr", np.nan) for n in nxt[:-1]],
+                        {"long_name": "nested-model likelihood-ratio test of this step against the previous"}),
+            d_aic=("step", [np.nan] + [n.get("d_aic", np.nan) for n in nxt[:-1]]),
+            d_bic=("step", [np.nan] + [n.get("d_bic", np.nan) for n in nxt[:-1]]),
+            params=("step", [json.dumps(s["params"]) for s in steps],
+                    {"long_name": "every parameter of the model at this step (JSON, SI)"}),
+            recommended=("step", [s["diagnosis"]["recommended"] for s in steps]),
+            diagnosis=("step", [explain(s["diagnosis"]) for s in steps]),
+            n_solves=("step", [s["n_solves"] for s in steps]),
+        ),
+        coords=dict(step=np.arange(len(steps))),
+    )
+    ds.attrs = provenance(stopped_because=out["stopped_because"], noise=out["noise"], **attrs)
+    return ds

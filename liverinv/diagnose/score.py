@@ -1,0 +1,137 @@
+"""Which effect is missing, from the fit alone: score tests at the effects' null values.
+
+One forward solve of the fitted law at its optimum gives the residual r and, by direct
+differentiation, its derivatives along the fitted parameters (X) and along every candidate
+effect's amplitude at every scanned value (z). For each candidate:
+
+* z is made orthogonal to X (the fitted parameters would absorb the rest of it);
+* the predicted drop of Phi is ``(z'r)^2 / z'z`` and the one-step estimate of the amplitude
+  ``-z'r / z'z`` (Gauss-Newton from the null); an estimate against the physical sign
+  (a negative relaxation amplitude) predicts no drop;
+* the statistic ``t = -sign z'r / sqrt(V)`` uses the cluster-robust variance of the score
+  ``V = sum_g (sum_{i in g} z_i r_i)^2`` over the fit's residual groups (12 mm node blocks with
+  all their frames, 0.25 s indenter chunks), because tracking errors and the model mesh's
+  discretization error are correlated in space and time; the one-sided p-value ``1 - Phi(t)``
+  is multiplied by the number of scanned values (Bonferroni over the scan);
+* an effect is recommended when its p-value is below `alpha` and its predicted drop is at
+  least `min_drop` of Phi_vol; the best of those (largest predicted drop) is the
+  recommendation.
+"""
+
+from __future__ import annotations
+
+import json
+import time as _time
+
+import numpy as np
+from scipy import stats
+
+from .effects import CATALOG, available_effects
+
+__all__ = ["diagnose", "ALPHA", "MIN_DROP"]
+
+ALPHA = 0.01        # family-wise level of the scan-corrected one-sided test
+MIN_DROP = 0.01     # an effect must be predicted to remove this fraction of Phi_vol
+EPS = 1e-6          # step of the sensitivity directions
+
+
+def _orthogonal(X, Z):
+    if X.shape[1] == 0:
+        return Z
+    Q, _ = np.linalg.qr(X)
+    return Z - Q @ (Q.T @ Z)
+
+
+def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, effects=None,
+             alpha=ALPHA, min_drop=MIN_DROP) -> dict:
+    """Score tests of the candidate `effects` (default: every available effect the law lacks)
+    for the fit `params` of `objective.law` (`fitted`: the names that were identified,
+    `log_scale`: their normalization). Returns a dict with `rows` (one per effect, ranked by
+    predicted drop), `recommended` (an effect name or 'none') and what was done."""
+    t0 = _time.perf_counter()
+    law = objective.law
+    cands = [CATALOG[e] for e in effects] if effects else available_effects(law, objective.fixed)
+    fm = objective.forward
+    base = {**params, **objective.fixed}
+    model = fm.model(law, base)
+    full = fm.element_params(law, base)
+    dirs = []
+    for name, ls in zip(fitted, log_scale):
+        p = dict(full)
+        p[name] = full[name] * 10 ** EPS if ls else full[name] + EPS
+        dirs.append(p)
+    cols = []
+    for e in cands:
+        for scan in e.scan_points():
+            dirs.append(e.variant(full, EPS, scan))
+            cols.append((e, scan))
+    ev = objective.evaluate_model(dict(params), model, [model.with_params(d) for d in dirs], EPS)
+    if not ev.ok:
+        raise ValueError(f"the forward solve at the fit's optimum failed: {ev.message}")
+    r, J = ev.residual, ev.jacobian
+    k = len(fitted)
+    Z = _orthogonal(J[:, :k], J[:, k:])
+    groups = objective.residual_groups()
+    s = Z.T @ r
+    zz = np.einsum("ij,ij->j", Z, Z)
+    # cluster-robust variance of each score
+    _, g_idx = np.unique(groups, return_inverse=True)
+    G = np.zeros((g_idx.max() + 1, Z.shape[1]))
+    np.add.at(G, g_idx, Z * r[:, None])
+    V = np.einsum("gj,gj->j", G, G)
+    n_vol = objective.v_of.size
+    rows = []
+    for e in cands:
+        idx = [i for i, (ee, _) in enumerate(cols) if ee is e]
+        best = None
+        for i in idx:
+            theta = -s[i] / zz[i] if zz[i] > 0 else 0.0
+            physical = theta * e.sign > 0
+            drop = s[i] ** 2 / zz[i] if (zz[i] > 0 and physical) else 0.0
+            t = (-np.sign(e.sign) * s[i]) / np.sqrt(V[i]) if V[i] > 0 else 0.0
+            cand = dict(i=i, theta=theta, physical=physical, drop=drop, t=t, scan=cols[i][1])
+            if best is None or cand["drop"] > best["drop"] or (cand["drop"] == best["drop"] == 0 and t > best["t"]):
+                best = cand
+        p_raw = float(stats.norm.sf(best["t"]))
+        p_adj = float(min(1.0, p_raw * len(idx)))
+        rows.append(dict(effect=e.name, description=e.description,
+                         predicted_drop=float(best["drop"] / phi_vol) if phi_vol > 0 else 0.0,
+                         predicted_drop_phi=float(best["drop"]), p_value=p_adj, p_value_raw=p_raw,
+                         statistic=float(best["t"]), physical=bool(best["physical"]), n_scan=len(idx),
+                         amplitude=float(best["theta"]), amplitude_unit=e.unit,
+                         estimate=e.estimate(best["theta"], best["scan"]) if best["physical"] else {},
+                         where=_where(objective, Z[:, best["i"]], n_vol)))
+    rows.sort(key=lambda row: (-row["predicted_drop"], row["p_value"]))
+    ok = [row for row in rows if row["p_value"] < alpha and row["predicted_drop"] >= min_drop and row["physical"]]
+    not_tested = {e.name: e.why_not for e in CATALOG.values() if not e.available}
+    return dict(rows=rows, recommended=ok[0]["effect"] if ok else "none", alpha=alpha, min_drop=min_drop,
+                residual_check=float(np.sqrt(np.mean(r ** 2))), phi=float(ev.phi), phi_vol=float(ev.phi_vol),
+                phi_ind=float(ev.phi_ind), not_tested=not_tested, n_directions=len(dirs),
+                wall_s=_time.perf_counter() - t0,
+                scan="relaxation times over " + ", ".join(f"{v:g}" for v in
+                                                            CATALOG["shear_relaxation"].scanned["tau_g1"]) + " s")
+
+
+def _where(objective, z, n_vol):
+    """Where in space and time the effect changes the motion: its squared sensitivity's
+    shares by region (under the punch, rim, far field) and by time window (loading,
+    unloading), in plain words."""
+    d = objective.data
+    K, N = objective.K, objective.N
+    zv = z[:n_vol].reshape(K, N, 3) ** 2
+    total = zv.sum()
+    if total <= 0:
+        return "acts on the indenter record only"
+    X = objective.forward.mesh.points if d.X is None else np.asarray(d.X)
+    r = np.hypot(X[:, 0], X[:, 1])
+    a = 0.006
+    region = {"under the punch": r < a, "near the rim": (r >= a) & (r < 2 * a), "far field": r >= 2 * a}
+    tm = 0.5 * (d.t0 + d.t1)
+    t_rev = objective.t_drive[np.argmax(objective.d_drive)] if hasattr(objective, "d_drive") else tm.max()
+    window = {"loading": tm <= t_rev, "unloading": tm > t_rev}
+    by_region = {k: float(zv[:, m].sum() / total) for k, m in region.items()}
+    by_time = {k: float(zv[m].sum() / total) for k, m in window.items()}
+    r_top = max(by_region, key=by_region.get)
+    t_top = max(by_time, key=by_time.get)
+    return (f"{100 * by_region[r_top]:.0f} % {r_top}, {100 * by_time[t_top]:.0f} % in the {t_top} "
+            f"({json.dumps({**{k: round(v, 3) for k, v in by_region.items()}, **{k: round(v, 3) for k, v in by_time.items()}})})")
