@@ -86,6 +86,7 @@ def test_fit_jobs_and_their_options_follow_the_study(tmp_path):
                       "convergence": 1, "figures": 1}),
     ("paper-table3", {"truth": 1, "render": 1, "track": 1, "fit": 5, "gather": 1, "tables": 1,
                       "convergence": 5, "figures": 1}),
+    ("discover", {"mesh": 1, "truth": 1, "render": 1, "track": 1, "discover": 1}),
     ("paper-table1,paper-table2", {"truth": 1, "render": 1, "track": 1, "mesh": 1, "fit": 6, "gather": 2,
                                    "tables": 2, "convergence": 2, "figures": 2}),
 ])

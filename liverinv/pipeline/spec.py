@@ -68,7 +68,7 @@ class WorkflowStudy:
         tracking mesh), 'truth_mesh' (the truth simulation's instead of its study's) or
         'model_mesh' (the forward model's); (None, None) if not set."""
         value = {"mesh": self.spec["mesh"], "truth_mesh": self.spec.get("truth_mesh"),
-                 "model_mesh": self.spec["fit"].get("model_mesh")}[key]
+                 "model_mesh": self.spec.get("fit", {}).get("model_mesh")}[key]
         if value is None:
             return None, None
         if value in MESH_PRESETS:
@@ -86,15 +86,19 @@ class WorkflowStudy:
     # --- fits -------------------------------------------------------------------------------
     @property
     def laws(self) -> list:
-        return list(self.spec["fit"]["laws"])
+        return list(self.spec.get("fit", {}).get("laws", []))
 
     @property
     def seeds(self) -> list:
-        return list(self.spec["fit"]["seeds"])
+        return list(self.spec.get("fit", {}).get("seeds", {}))
 
     @property
     def methods(self) -> list:
-        return list(self.spec["fit"].get("methods", ["least-squares"]))
+        return list(self.spec.get("fit", {}).get("methods", ["least-squares"]))
+
+    @property
+    def discover(self) -> dict | None:
+        return self.spec.get("discover")
 
     def fit_jobs(self) -> list[FitJob]:
         return [FitJob(law, seed, method) for law in self.laws for seed in self.seeds for method in self.methods]
@@ -113,7 +117,7 @@ class WorkflowStudy:
 
     def fit_arguments(self, job: FitJob) -> list[str]:
         """The options of `liverinv fit` for one job, apart from the data and output paths."""
-        fit = self.spec["fit"]
+        fit = self.spec.get("fit", {})
         args = ["--law", job.law, "--method", job.method]
         args += [f"--start={k}={v!r}" for k, v in self.start(job.law, job.seed).items()]
         args += [f"--fixed={k}={v!r}" for k, v in self.fixed(job.law).items()]
@@ -132,7 +136,7 @@ class WorkflowStudy:
 
     @property
     def agree_tol(self) -> float:
-        return float(self.spec["fit"].get("agree_tol", 0.02))
+        return float(self.spec.get("fit", {}).get("agree_tol", 0.02))
 
 
 def _fail(path, key, msg):
@@ -159,7 +163,9 @@ def validate_workflow_study(spec, path) -> dict:
             msg += f"; allowed keys: {', '.join(allowed)}"
         raise StudyError(f"{path}: {where}: {msg}")
     base = Path(path).parent
-    fit = spec["fit"]
+    fit = spec.get("fit", {"laws": [], "seeds": {}})
+    if "discover" in spec and spec["discover"]["law"] not in LAWS:
+        _fail(path, "discover/law", f"unknown law {spec['discover']['law']!r}; known: {', '.join(LAWS)}")
     for law in fit["laws"]:
         if law not in LAWS:
             _fail(path, "fit/laws", f"unknown law {law!r}; known: {', '.join(LAWS)}")

@@ -130,5 +130,19 @@ def figure_files(study):
 
 
 def study_outputs(study):
-    return [f"{RESULTS}/{study}/fits.nc", f"{RESULTS}/{study}/table.csv", f"{RESULTS}/{study}/table.md",
-            *figure_files(study)]
+    s = STUDY[study]
+    out = []
+    if s.laws:
+        out += [f"{RESULTS}/{study}/fits.nc", f"{RESULTS}/{study}/table.csv", f"{RESULTS}/{study}/table.md",
+                *figure_files(study)]
+    if s.discover:
+        out += [f"{RESULTS}/{study}/discovery.nc", f"{RESULTS}/{study}/figures/discovery.png"]
+    return out
+
+
+def discover_options(wildcards, input):
+    s = STUDY[wildcards.study]
+    args = ["--law", s.discover["law"], "--max-steps", str(s.discover.get("max_steps", 3))]
+    if "model_mesh" in input.keys():
+        args += ["--model-mesh", input.model_mesh]
+    return " ".join(args)

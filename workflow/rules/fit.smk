@@ -115,3 +115,28 @@ rule figures:
         "liverinv figures {input.fits} --fits-dir {params.folder} --bundle {input.bundle} --flow {input.flow} "
         "--mesh {input.mesh} --nodes {params.nodes} --slice-y {params.slice_y} "
         "--indenter {output.indenter} --velocities {output.velocities} --fields {output.fields} > {log} 2>&1"
+
+
+rule discover:
+    input:
+        unpack(fit_inputs),
+    output:
+        nc=f"{RESULTS}/{{study}}/discovery.nc",
+        fig=report(f"{RESULTS}/{{study}}/figures/discovery.png", caption="../report/discovery.rst",
+                   category="diagnosis", subcategory="{study}"),
+    params:
+        options=discover_options,
+        folder=lambda wildcards, output: os.path.dirname(output.fig),
+    log:
+        f"{RESULTS}/logs/{{study}}/discover.log",
+    benchmark:
+        f"{RESULTS}/benchmarks/{{study}}/discover.tsv"
+    conda:
+        "../envs/liverinv.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=240,
+    shell:
+        "liverinv discover --bundle {input.bundle} --flow {input.flow} --mesh {input.mesh} {params.options} "
+        "--out {output.nc} --figures {params.folder} > {log} 2>&1"
