@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import re
 import signal
 import sys
 import threading
@@ -67,8 +68,23 @@ def _restore_handlers(previous: dict):
         signal.signal(s, h if h is not None else signal.SIG_DFL)
 
 
+_NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+
+
+def _join_negative_values(argv):
+    """`--depth -9e-3` as `--depth=-9e-3`: argparse takes a token such as -9e-3 for an option."""
+    out = []
+    for tok in argv:
+        if out and out[-1].startswith("--") and "=" not in out[-1] and _NEGATIVE_NUMBER.match(tok):
+            out[-1] = f"{out[-1]}={tok}"
+        else:
+            out.append(tok)
+    return out
+
+
 def main(argv=None) -> int:
     previous = _install_handlers()
+    argv = _join_negative_values(sys.argv[1:] if argv is None else list(argv))
     command = "?"
     try:
         parser = build_parser()

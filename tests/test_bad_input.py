@@ -185,3 +185,22 @@ def test_an_oserror_while_writing_names_the_output(tmp_path):
             tmp.write_bytes(b"partial")
             raise OSError(errno.ENOSPC, "No space left on device")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_plot_of_a_bundle_or_a_flow_and_a_negative_depth_are_one_line(tmp_path, capsys):
+    import h5py
+    import numpy as np
+    import xarray as xr
+    from liverinv.imaging.bundle import FORMAT
+    b = tmp_path / "b.h5"
+    with h5py.File(b, "w") as f:
+        f.attrs["format"] = FORMAT
+    xr.Dataset({"u_of": (("frame", "node"), np.zeros((2, 3)))}).to_netcdf(tmp_path / "f.nc", engine="h5netcdf")
+    for path, says in ((b, "a measurement bundle; plot takes run files"), (tmp_path / "f.nc", "a flow file")):
+        assert main(["plot", str(path), "--out", str(tmp_path / "x.png")]) == 2
+        assert says in _one_line(capsys.readouterr().err)
+    assert not (tmp_path / "x.png").exists()
+    study = Path(__file__).resolve().parents[1] / "config/truths/benchmark.yaml"
+    assert main(["simulate", str(study), "--depth", "-9e-3", "--out", str(tmp_path / "r.nc")]) == 2
+    assert "loading/depth: -0.009 is out of range; it must be > 0" in _one_line(capsys.readouterr().err)
+    assert not (tmp_path / "r.nc").exists()

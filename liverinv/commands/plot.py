@@ -25,6 +25,12 @@ def run(args) -> int:
     for r in args.files:
         if not Path(r).is_file():
             raise UserError(f"{r}: file not found")
+    for r in args.files:
+        what = _kind(r)
+        if what not in ("run", "fit"):
+            raise UserError(f"{r}: {what}; plot takes run files (liverinv simulate) or fit files (liverinv fit)"
+                            + (" -- for a bundle, liverinv check --picture draws it" if what.startswith("a measurement")
+                               else " -- liverinv track --picture draws a flow" if what.startswith("a flow") else ""))
     try:
         kinds = {is_fit_file(f) for f in args.files}
         if len(kinds) > 1:
@@ -39,3 +45,29 @@ def run(args) -> int:
         raise UserError(f"cannot plot {args.files}: {e}") from None
     print(f"wrote {args.out}" + (f" and {args.fields}" if args.fields else ""))
     return 0
+
+
+def _kind(path) -> str:
+    """'run', 'fit', or what else the file is, in words."""
+    import h5py
+    try:
+        with h5py.File(path, "r") as f:
+            if f.attrs.get("format") in ("liverinv-us-bundle", b"liverinv-us-bundle"):
+                return "a measurement bundle"
+            names = set(f.keys())
+    except OSError:
+        return "not a netCDF/HDF5 file"
+    if "best" in names or f_status(path) == "failed":
+        return "fit"
+    if "indenter_depth" in names and "u" in names:
+        return "run"
+    if "u_of" in names:
+        return "a flow file"
+    return "neither a run file nor a fit file"
+
+
+def f_status(path):
+    import h5py
+    with h5py.File(path, "r") as f:
+        s = f.attrs.get("status", "")
+    return s.decode() if isinstance(s, bytes) else s

@@ -86,8 +86,13 @@ def run(args) -> int:
             raise UserError(rep.problems[0] + " (liverinv check draws the placement)")
         for w in rep.warnings:
             print(f"warning: {w}", file=sys.stderr)
-        ds = track_bundle(b, points, cells, opts, stride=tuple(args.stride), frames=args.frames,
-                          window=args.window)
+        from tqdm import tqdm
+        with tqdm(desc="track", unit="pair", disable=None) as bar:
+            def progress(k, n):
+                bar.total = n
+                bar.update(1)
+            ds = track_bundle(b, points, cells, opts, stride=tuple(args.stride), frames=args.frames,
+                              window=args.window, progress=progress)
         ds.attrs.update(provenance(bundle=str(args.bundle), bundle_sha256=file_sha256(args.bundle),
                                    mesh=str(args.mesh), mesh_sha256=file_sha256(args.mesh)))
         write_netcdf(ds, args.out)

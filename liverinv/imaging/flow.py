@@ -27,10 +27,11 @@ __all__ = ["track_bundle", "score_against_truth"]
 
 
 def track_bundle(bundle: Bundle, points, cells, options: TrackOptions | None = None,
-                 stride=(2, 2, 1), frames=None, window="subtet") -> xr.Dataset:
+                 stride=(2, 2, 1), frames=None, window="subtet", progress=None) -> xr.Dataset:
     """Nodal Lucas-Kanade flow of every consecutive frame pair of `bundle` (see module doc).
 
-    `frames` optionally restricts tracking to the first `frames` volumes."""
+    `frames` optionally restricts tracking to the first `frames` volumes; `progress(k, n)` is
+    called after each of the n frame pairs."""
     opts = options or TrackOptions()
     grid = bundle.grid
     t0, c0 = _time.perf_counter(), _time.process_time()
@@ -50,6 +51,8 @@ def track_bundle(bundle: Bundle, points, cells, options: TrackOptions | None = N
         u_of[k - 1] = grid.vec_to_m(v)
         c_of[k - 1] = c
         iters[k - 1] = tracker.iterations
+        if progress is not None:
+            progress(k, nf - 1)
     t_track = _time.perf_counter() - t0 - t_build
     cpu = _time.process_time() - c0
     log.info("tracked %d frame pairs at %d nodes in %.1f s (+%.1f s weights)", nf - 1, n,

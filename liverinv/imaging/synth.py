@@ -170,9 +170,12 @@ def synthesize(study: dict, base_dir, out, truth_out=None, source="study", truth
     u_frames = ds["u"].interp(time=times).values
 
     def volumes():
-        for k in range(len(times)):
-            log.info("frame %d/%d", k + 1, len(times))
-            yield scene.frame(u_frames[k])
+        from tqdm import tqdm
+        with tqdm(total=len(times), desc="render", unit="volume", disable=None) as bar:
+            for k in range(len(times)):
+                log.info("frame %d/%d", k + 1, len(times))
+                yield scene.frame(u_frames[k])
+                bar.update(1)
 
     ind_cfg = im["indenter"]
     rate = float(ind_cfg.get("rate_hz", 100.0))

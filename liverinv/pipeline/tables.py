@@ -79,6 +79,8 @@ def markdown_table(ds: xr.Dataset) -> str:
     if rk is not None:
         out += ["\n## Ranking of the laws by Phi_vol (best fit of each law, at the common noise levels)\n",
                 _plain_markdown(rk)]
+    out += ["", f"Provenance: study file sha256 {ds.attrs.get('study_sha256', '?')[:16]}..., liverinv "
+                f"{ds.attrs.get('liverinv_version', '?')}, git {ds.attrs.get('git_revision', '?')}."]
     return "\n".join(out) + "\n"
 
 
