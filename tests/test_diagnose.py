@@ -54,7 +54,7 @@ def test_every_effect_at_its_null_reproduces_the_base_model(tiny, effect):
 
 @pytest.mark.parametrize("truth_law, truth, expected", [
     ("SR", dict(E, g1=0.3, tau_g1=0.5), "shear_relaxation"),
-    ("BR", dict(E, D2=1e3, k1=0.5, tau_k1=0.3), "bulk_relaxation"),
+    pytest.param("BR", dict(E, D2=1e3, k1=0.5, tau_k1=0.3), "bulk_relaxation", marks=pytest.mark.slow),
     ("elastic", E, "none"),
 ])
 def test_planted_effect_is_found_and_null_data_stay_silent(tiny, truth_law, truth, expected):
@@ -66,6 +66,9 @@ def test_planted_effect_is_found_and_null_data_stay_silent(tiny, truth_law, trut
     # the null solve of the diagnosis is the fit's optimum again
     assert d["phi"] == pytest.approx(out["best"]["phi"], rel=1e-9)
     assert d["recommended"] == expected, d["rows"]
+    assert set(d["splits"]) == {"region", "depth", "time", "component"}
+    for parts in d["splits"].values():
+        assert sum(parts.values()) == pytest.approx(1.0, rel=1e-9)
     assert {r["effect"] for r in d["rows"]} == {e.name for e in available_effects("elastic")}
     assert set(d["not_tested"]) == {"poroelastic", "inclusion", "punch_friction", "bottom_slip"}
     if expected != "none":

@@ -135,7 +135,8 @@ def test_reduced_quick_study_end_to_end(tmp_path):
                      .replace("shape: [128, 48, 204]", "shape: [96, 40, 150]"))
     study = write_study(tmp_path / "mini.yaml", truth=str(truth), fit={
         "laws": ["elastic"], "seeds": {"low": {"C1": 140.0, "C2": 6500.0, "D1": 1.05e-3},
-                                       "high": {"C1": 260.0, "C2": 3500.0, "D1": 1.95e-3}}})
+                                       "high": {"C1": 260.0, "C2": 3500.0, "D1": 1.95e-3}}},
+        discover={"law": "elastic", "max_steps": 1})
     cfg = tmp_path / "config.yaml"
     res = tmp_path / "results"
     cfg.write_text(f"study: mini\nstudies: {{mini: {study}}}\nresults: {res}\n")
@@ -158,6 +159,22 @@ def test_reduced_quick_study_end_to_end(tmp_path):
     point_data = meshio.read(frames[3]).point_data
     assert set(point_data) == {"v_tracked", "v_model", "v_difference", "confidence"}
     assert np.allclose(point_data["v_difference"], point_data["v_tracked"] - point_data["v_model"])
+    # the discovery (elastic truth: nothing to add) and a diagnosis of one fit, by their contract names
+    disc = xr.load_dataset(res / "mini/discovery.nc", engine="h5netcdf")
+    assert list(disc.added.values) == [""] and "nothing recommended" in disc.attrs["stopped_because"]
+    assert {"phi", "phi_vol", "phi_ind", "predicted_drop", "params"} <= set(disc.data_vars)
+    assert json.loads(disc.params.values[0]).keys() >= {"C1", "C2", "D1"}
+    from liverinv.cli import main
+    data = next((res / "data").glob("*/bundle.h5")).parent
+    rc = main(["diagnose", "--fit", str(res / "mini/fits/elastic_low_least-squares.nc"), "--bundle",
+               str(data / "bundle.h5"), "--flow", str(next(data.glob("flow_*.nc"))), "--mesh",
+               str(res / "meshes/tiny.msh"), "--out", str(tmp_path / "diag.nc")])
+    assert rc == 0
+    diag = xr.load_dataset(tmp_path / "diag.nc", engine="h5netcdf")
+    assert diag.attrs["recommended"] == "none" and list(diag.effect.values)[0] in ("shear_relaxation",
+                                                                                   "bulk_relaxation", "nonlinear_bulk")
+    assert (diag.predicted_drop.values[:-1] >= diag.predicted_drop.values[1:]).all()      # rank order
+    assert {"p_value", "estimate", "share_region", "share_time"} <= set(diag.data_vars)
     # rerunning a finished study does nothing
     again = snakemake("--configfile", cfg, "--cores", "2", "-n", cwd=tmp_path)
     assert again.returncode == 0 and "Nothing to be done" in (again.stdout + again.stderr)

@@ -65,6 +65,8 @@ def run(args) -> int:
     if args.figures:
         from ..diagnose.figures import plot_diagnosis
         plot_diagnosis(out, args.figures / "diagnosis.png")
+    for split, parts in d.get("splits", {}).items():
+        print(f"Phi_vol by {split}: " + ", ".join(f"{k} {100 * v:.0f} %" for k, v in parts.items()))
     print(explain(d))
     print(f"wrote {args.out}: recommended {d['recommended']} ({d['wall_s']:.1f} s, {d['n_directions']} directions "
           f"in one solve); not tested: {', '.join(d['not_tested'])}")

@@ -51,10 +51,14 @@ def run(args) -> int:
             obj = obj.with_noise(replace(obj.noise, sources=noise.sources))
         return obj
 
+    from tqdm import tqdm
+    bar = tqdm(desc=f"discover from {args.law}", unit="solve", disable=None)
     try:
-        out = discover(objective_for, args.law, start, args.max_steps)
+        out = discover(objective_for, args.law, start, args.max_steps, progress=lambda rec: bar.update(1))
     except ValueError as e:
         raise UserError(str(e)) from None
+    finally:
+        bar.close()
     ds = discovery_dataset(out, base_law=args.law, bundle=str(args.bundle), flow=str(args.flow), mesh=str(args.mesh),
                            model_mesh=str(args.model_mesh or args.mesh),
                            defaults="likelihood objective; multi-start (8 design points) for laws with relaxation; "

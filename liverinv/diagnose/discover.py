@@ -61,7 +61,8 @@ def _clip_start(law, p):
 
 def discover(objective_for, base_law, start=None, max_steps=3, progress=None) -> dict:
     """`objective_for(law, fixed, noise)` builds the objective of a law on the data (noise None:
-    the data's own levels). Returns the steps (law, added effect, fit and diagnosis figures)."""
+    the data's own levels); `progress(rec)` is called after every forward solve of the fits.
+    Returns the steps (law, added effect, fit and diagnosis figures)."""
     obj = objective_for(base_law, {}, None)
     law = get_law(base_law)
     start = {k: v for k, v in (start or law.defaults).items() if k in law.free}

@@ -19,7 +19,14 @@ def _plt():
 
 def plot_diagnosis(ds, out):
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+    splits = [v for v in ds.data_vars if v.startswith("share_")]
+    fig, axes = plt.subplots(1, 1 + len(splits), figsize=(7 + 3.2 * len(splits), 3.5), squeeze=False)
+    ax = axes[0, 0]
+    for a, v in zip(axes[0, 1:], splits):
+        dim = ds[v].dims[0]
+        a.bar(range(ds.sizes[dim]), 100 * ds[v].values, color="tab:blue")
+        a.set_xticks(range(ds.sizes[dim]), ds[dim].values, rotation=20, fontsize=8)
+        a.set(ylabel="share of Phi_vol (%)", title=f"misfit by {dim}")
     y = np.arange(ds.sizes["effect"])
     ax.barh(y, 100 * ds.predicted_drop.values, color=["tab:green" if e == ds.attrs["recommended"] else "0.6"
                                                        for e in ds.effect.values])

@@ -49,6 +49,9 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
         ),
         coords=dict(effect=[r["effect"] for r in rows]),
     )
+    for split, parts in d.get("splits", {}).items():
+        ds[f"share_{split}"] = (split, list(parts.values()), {"long_name": f"share of Phi_vol by {split}", "units": "1"})
+        ds = ds.assign_coords({split: list(parts)})
     ds.attrs = provenance(recommended=d["recommended"], alpha=d["alpha"], min_drop=d["min_drop"], scan=d["scan"],
                           not_tested=d["not_tested"], n_directions=d["n_directions"], wall_s=d["wall_s"],
                           phi=d["phi"], phi_vol=d["phi_vol"], phi_ind=d["phi_ind"], explanation=explain(d),

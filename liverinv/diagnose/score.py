@@ -104,7 +104,8 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
     rows.sort(key=lambda row: (-row["predicted_drop"], row["p_value"]))
     ok = [row for row in rows if row["p_value"] < alpha and row["predicted_drop"] >= min_drop and row["physical"]]
     not_tested = {e.name: e.why_not for e in CATALOG.values() if not e.available}
-    return dict(rows=rows, recommended=ok[0]["effect"] if ok else "none", alpha=alpha, min_drop=min_drop,
+    from .splits import misfit_splits
+    return dict(rows=rows, splits=misfit_splits(objective, r), recommended=ok[0]["effect"] if ok else "none", alpha=alpha, min_drop=min_drop,
                 residual_check=float(np.sqrt(np.mean(r ** 2))), phi=float(ev.phi), phi_vol=float(ev.phi_vol),
                 phi_ind=float(ev.phi_ind), not_tested=not_tested, n_directions=len(dirs),
                 wall_s=_time.perf_counter() - t0,
