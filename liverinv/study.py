@@ -97,15 +97,21 @@ def validate_imaging(imaging, source="study") -> None:
     _check({"imaging": imaging}, {"type": "object", "properties": {"imaging": sub}}, source)
 
 
-def load_study(path) -> tuple[dict, Path]:
-    """Read and validate a study YAML; returns (study, directory of the file)."""
+def read_yaml(path):
+    """The parsed YAML of a study file (1e-3 read as a number); StudyError naming the file."""
     path = Path(path)
     try:
-        study = yaml.load(path.read_text(), Loader=_Loader)
+        return yaml.load(path.read_text(), Loader=_Loader)
     except FileNotFoundError:
         raise StudyError(f"{path}: study file not found") from None
     except yaml.YAMLError as e:
         raise StudyError(f"{path}: not valid YAML ({e})") from None
+
+
+def load_study(path) -> tuple[dict, Path]:
+    """Read and validate a study YAML; returns (study, directory of the file)."""
+    path = Path(path)
+    study = read_yaml(path)
     if not isinstance(study, dict):
         raise StudyError(f"{path}: a study is a mapping of keys (mesh, law, loading, ...)")
     return validate_study(study, str(path)), path.parent

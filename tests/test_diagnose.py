@@ -4,6 +4,7 @@ planted shear or bulk relaxation behind an elastic fit and stay silent on elasti
 import numpy as np
 import pytest
 
+from conftest import SIGMA_D, SIGMA_F, SIGMA_TRACK, noisy_measurements
 from liverinv.diagnose.effects import CATALOG, available_effects, law_with
 from liverinv.diagnose.score import diagnose
 from liverinv.forward import ForwardModel
@@ -12,7 +13,6 @@ from liverinv.identify.objective import Measurements, Objective
 from liverinv.identify.optimize import Fit
 from liverinv.loading import ramp_history
 
-SIGMA_F, SIGMA_D, SIGMA_TRACK = 13e-3, 3.9e-6, 2e-6
 E = dict(C1=200.0, C2=5000.0, D1=1.5e-3)
 
 
@@ -21,19 +21,6 @@ def tiny(tmp_path_factory):
     from liverinv.meshgen import generate_indentation_mesh
     path = generate_indentation_mesh(tmp_path_factory.mktemp("mesh") / "tiny.msh", h_far=0.03, h_rim=0.004)
     return ForwardModel(path)
-
-
-def measurements(run, seed):
-    rng = np.random.default_rng(seed)
-    t = run.time.values
-    t_ind = np.arange(0, t[-1] + 1e-9, 0.01)
-    depth = np.interp(t_ind, t, run.indenter_depth.values) + SIGMA_D * rng.standard_normal(t_ind.size)
-    force = np.interp(t_ind, t, run.indenter_force.values) + SIGMA_F * rng.standard_normal(t_ind.size)
-    idx = np.arange(0, len(t), 2)
-    u = run.u.values
-    c = rng.uniform(0.2, 1.0, (len(idx) - 1,) + u.shape[1:])
-    u_of = u[idx[1:]] - u[idx[:-1]] + SIGMA_TRACK / np.sqrt(c) * rng.standard_normal(c.shape)
-    return Measurements(t_ind, depth, force, t[idx[:-1]], t[idx[1:]], u_of, c)
 
 
 @pytest.mark.parametrize("effect", [e for e in CATALOG if CATALOG[e].available and e != "strain_stiffening"])
@@ -59,7 +46,7 @@ def test_every_effect_at_its_null_reproduces_the_base_model(tiny, effect):
 ])
 def test_planted_effect_is_found_and_null_data_stay_silent(tiny, truth_law, truth, expected):
     run = tiny.run(truth_law, truth, ramp_history(4e-3, 2e-3, frames=17, unload=True))
-    obj = Objective(tiny, "elastic", measurements(run, 0), noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
+    obj = Objective(tiny, "elastic", noisy_measurements(run, 0), noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
     fit = Fit(obj, dict(C1=150.0, C2=6000.0, D1=1e-3))
     out = fit.least_squares()
     d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])

@@ -5,6 +5,7 @@ covariance, and identification under the seed paper's indenter noise (3.9 um, 13
 import numpy as np
 import pytest
 
+from conftest import SIGMA_D, SIGMA_F, SIGMA_TRACK, noisy_measurements
 from liverinv.forward import ForwardModel
 from liverinv.identify.noise import (NoiseModel, piecewise_quadratic, reversals, smooth_record,
                                     tracking_noise, white_noise_rms)
@@ -15,7 +16,6 @@ from liverinv.loading import ramp_history
 
 TRUTH = dict(C1=200.0, C2=5000.0, D1=1.5e-3)
 START = dict(C1=140.0, C2=6500.0, D1=1.05e-3)     # 30 % off
-SIGMA_D, SIGMA_F, SIGMA_TRACK = 3.9e-6, 13e-3, 2e-6
 
 
 def _triangle(t, depth=6e-3, rate=2e-3):
@@ -111,19 +111,6 @@ def noisy_case(tmp_path_factory):
     return fm, run
 
 
-def _noisy_measurements(run, seed):
-    rng = np.random.default_rng(seed)
-    t = run.time.values
-    t_ind = np.arange(0, t[-1] + 1e-9, 0.01)
-    depth = np.interp(t_ind, t, run.indenter_depth.values) + SIGMA_D * rng.standard_normal(t_ind.size)
-    force = np.interp(t_ind, t, run.indenter_force.values) + SIGMA_F * rng.standard_normal(t_ind.size)
-    idx = np.arange(0, len(t), 2)
-    u = run.u.values
-    c = rng.uniform(0.2, 1.0, (len(idx) - 1,) + u.shape[1:])
-    u_of = u[idx[1:]] - u[idx[:-1]] + SIGMA_TRACK / np.sqrt(c) * rng.standard_normal(c.shape)
-    return Measurements(t_ind, depth, force, t[idx[:-1]], t[idx[1:]], u_of, c)
-
-
 def test_paper_noise_recovered_by_the_likelihood_with_honest_uncertainty(noisy_case):
     """Five noise seeds: every fit from 30 % off within 5 % of the truth on every parameter,
     and the truth within two reported (cluster-robust) standard deviations in at least 4 of
@@ -133,7 +120,7 @@ def test_paper_noise_recovered_by_the_likelihood_with_honest_uncertainty(noisy_c
     noise = NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {})
     z = []
     for seed in range(5):
-        fit = Fit(Objective(fm, "elastic", _noisy_measurements(run, seed), noise=noise), START)
+        fit = Fit(Objective(fm, "elastic", noisy_measurements(run, seed), noise=noise), START)
         out = fit.least_squares()
         for k, v in TRUTH.items():
             assert out["params"][k] == pytest.approx(v, rel=0.05), (seed, k, out["params"])
@@ -154,7 +141,7 @@ def test_paper_objective_is_unchanged_and_its_indenter_term_is_force_noise(noisy
     fm, run = noisy_case
     clean = Objective(fm, "elastic", Measurements.from_run(run))
     assert clean.control == "force" and clean(TRUTH).phi < 1e-12
-    noisy = _noisy_measurements(run, 0)
+    noisy = noisy_measurements(run, 0)
     paper = Objective(fm, "elastic", noisy)(TRUTH)
     assert paper.phi_ind > 5 * paper.phi_vol
     lik = Objective(fm, "elastic", noisy, noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))(TRUTH)

@@ -6,7 +6,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
 
 from ..cli import UserError
 from . import parse_assignments

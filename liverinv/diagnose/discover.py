@@ -18,7 +18,7 @@ from scipy import stats
 from ..identify.balance import balanced_fit
 from ..identify.optimize import Fit
 from ..laws import PARAMS, get_law
-from .effects import CATALOG, law_with
+from .effects import law_with
 from .score import diagnose
 
 __all__ = ["discover", "fit_law"]

@@ -3,18 +3,9 @@ error falling step by step."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
-from ..fileio import atomic_path
-
-
-def _plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
+from ..pipeline.figures import _plt, _save
 
 
 def plot_diagnosis(ds, out):
@@ -36,11 +27,7 @@ def plot_diagnosis(ds, out):
     ax.invert_yaxis()
     ax.set(xlabel="predicted drop of Phi (% of Phi_vol)", title=f"recommended: {ds.attrs['recommended']}")
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return out
+    return _save(fig, out)
 
 
 def plot_discovery(ds, out):
@@ -54,8 +41,4 @@ def plot_discovery(ds, out):
     ax.set(yscale="log", ylabel="misfit (dimensionless, common noise levels)", title="discovery")
     ax.legend()
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return out
+    return _save(fig, out)

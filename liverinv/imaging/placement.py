@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import UserError
 
 __all__ = ["PlacementReport", "check_placement", "placement_picture"]
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import yaml
 
 from ..laws import LAWS, PARAMS, LawError, get_law
-from ..study import StudyError, _Loader, load_study
+from ..study import StudyError, load_study, read_yaml
 
 __all__ = ["WorkflowStudy", "FitJob", "load_workflow_study", "SCHEMA"]
 
@@ -218,11 +218,6 @@ def _subschema(schema, path):
 def load_workflow_study(path, name: str | None = None) -> WorkflowStudy:
     """Read and validate a workflow study YAML (named after its file unless `name`)."""
     path = Path(path)
-    try:
-        spec = yaml.load(path.read_text(), Loader=_Loader)
-    except FileNotFoundError:
-        raise StudyError(f"{path}: study file not found") from None
-    except yaml.YAMLError as e:
-        raise StudyError(f"{path}: not valid YAML ({e})") from None
+    spec = read_yaml(path)
     validate_workflow_study(spec, path)
     return WorkflowStudy(name or path.stem, path.resolve(), spec)
