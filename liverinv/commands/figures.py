@@ -26,15 +26,11 @@ def register(sub):
 
 
 def run(args) -> int:
-    import xarray as xr
-
     from ..cli import UserError
     from ..pipeline import figures as F
+    from ..pipeline.gather import load_dataset
 
-    if not args.fits.is_file():
-        raise UserError(f"{args.fits}: file not found")
-    with xr.open_dataset(args.fits, engine="h5netcdf") as ds:
-        ds = ds.load()
+    ds = load_dataset(args.fits)
     if args.convergence:
         if args.out is None:
             raise UserError("--convergence needs --out")

@@ -15,16 +15,11 @@ def register(sub):
 
 
 def run(args) -> int:
-    import xarray as xr
-
-    from ..cli import UserError
     from ..fileio import atomic_path
     from ..pipeline.tables import fit_table, markdown_table
+    from ..pipeline.gather import load_dataset
 
-    if not args.fits.is_file():
-        raise UserError(f"{args.fits}: file not found")
-    with xr.open_dataset(args.fits, engine="h5netcdf") as ds:
-        ds = ds.load()
+    ds = load_dataset(args.fits)
     with atomic_path(args.csv) as tmp:
         fit_table(ds).to_csv(tmp, index=False)
     md = markdown_table(ds)

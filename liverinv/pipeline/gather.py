@@ -11,7 +11,7 @@ from ..fileio import provenance
 from ..laws import PARAMS
 from .spec import FitJob, WorkflowStudy
 
-__all__ = ["gather_fits", "fit_flags", "STATUS"]
+__all__ = ["gather_fits", "fit_flags", "load_dataset", "STATUS"]
 
 STATUS = ("ok", "flagged", "failed")
 
@@ -21,7 +21,11 @@ def fit_flags(ds: xr.Dataset) -> list[str]:
     return [w for w in ds.attrs.get("warnings", "").split("\n") if w]
 
 
-def _open(path):
+def load_dataset(path) -> xr.Dataset:
+    """A fit file or gathered fits, loaded whole; UserError naming a missing file."""
+    from ..errors import UserError
+    if not Path(path).is_file():
+        raise UserError(f"{path}: file not found")
     with xr.open_dataset(path, engine="h5netcdf") as ds:
         return ds.load()
 
@@ -47,7 +51,7 @@ def gather_fits(study: WorkflowStudy, paths: dict[FitJob, Path]) -> xr.Dataset:
     phi_units = "1"
     for job, path in paths.items():
         i, j, k = laws.index(job.law), seeds.index(job.seed), methods.index(job.method)
-        ds = _open(path)
+        ds = load_dataset(path)
         for p, v in study.start(job.law, job.seed).items():
             start[i, j, k, idx[p]] = v
         if ds.attrs.get("status") == "failed" or "best" not in ds:
