@@ -19,8 +19,15 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 E = dict(C1=200.0, C2=5000.0, D1=1.5e-3)
-CASES = {"null": ("elastic", E), "shear": ("SR", dict(E, g1=0.4, tau_g1=0.5)),
-         "bulk": ("BR", dict(E, D2=1000.0, k1=0.5, tau_k1=0.3))}
+SR = dict(E, g1=0.4, tau_g1=0.5)
+# case -> (truth law, truth parameters, contact of the truth, base law of discover)
+CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic"),
+         "bulk": ("BR", dict(E, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "elastic"),
+         "friction": ("elastic", E, {"punch": "bonded"}, "elastic"),
+         "slip": ("elastic", E, {"support": "sliding"}, "elastic"),
+         "sr_null": ("SR", SR, {}, "SR"),
+         "sr_bulk": ("SBR", dict(SR, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "SR"),
+         "sr_friction": ("SR", SR, {"punch": "bonded"}, "SR")}
 
 
 def mesh_file(name, out):
@@ -55,10 +62,10 @@ def main(argv=None):
     base = yaml.safe_load((ROOT / "config/truths/hidden_bulk.yaml").read_text())
     rows = []
     for case in args.cases:
-        law, params = CASES[case]
+        law, params, contact, base_law = CASES[case]
         for seed in args.seeds:
             tag = f"{case}_s{seed}"
-            study = dict(base, mesh=str(tmesh), law=law, params=params)
+            study = dict(base, mesh=str(tmesh), law=law, params=params, **({"contact": contact} if contact else {}))
             study["imaging"] = dict(base["imaging"], seed=seed)
             (args.out / f"{tag}.yaml").write_text(yaml.safe_dump(study))
             b, f, d = args.out / f"{tag}.h5", args.out / f"{tag}_flow.nc", args.out / f"{tag}_disc.nc"
@@ -66,16 +73,17 @@ def main(argv=None):
                 sh("liverinv", "synthesize", args.out / f"{tag}.yaml", "--out", b)
             if not f.exists():
                 sh("liverinv", "track", b, "--mesh", mesh, "--out", f)
-            wall = sh("liverinv", "discover", "--bundle", b, "--flow", f, "--mesh", mesh, "--law", "elastic",
+            wall = sh("liverinv", "discover", "--bundle", b, "--flow", f, "--mesh", mesh, "--law", base_law,
                       "--out", d) if not d.exists() else float("nan")
             ds = xr.load_dataset(d, engine="h5netcdf")
             last = json.loads(ds.params.values[-1])
-            rows.append(f"| {case} | {seed} | {', '.join(a for a in ds.added.values if a) or 'none'} | "
+            top = ds.recommended.values[0]
+            rows.append(f"| {case} | {seed} | {top} | {', '.join(a for a in ds.added.values if a) or 'none'} | "
                         f"{ds.predicted_drop.values[-1]:.3g} | {ds.actual_drop.values[-1]:.3g} | "
                         + ", ".join(f"{k} {v:.4g}" for k, v in last.items()) + f" | {wall:.0f} |")
             print(rows[-1], flush=True)
-    print("| case | seed | added | predicted drop | actual drop | parameters at the last step | discover s |")
-    print("|---|---|---|---|---|---|---|")
+    print("| case | seed | first recommended | added | predicted drop | actual drop | parameters at the last step | discover s |")
+    print("|---|---|---|---|---|---|---|---|")
     print("\n".join(rows))
 
 

@@ -32,7 +32,7 @@ class ForwardModel:
     ----------
     mesh : path or TetMesh
     punch : "frictionless" or "bonded"
-    support : "fixed" or "sliding"
+    support : "fixed" or "sliding" (a law with the bottom_slip term makes a fixed bottom compliant)
     quadrature_order : polynomial degree the tetrahedron rule integrates exactly (2: the
         4-point rule of the peer references; 5: 14 points, more robust for neo-Hookean
         laws near the punch rim)
@@ -70,12 +70,23 @@ class ForwardModel:
                 out[k][sel] = merged[k]
         return out
 
-    def model(self, law_name, params, region_params=None) -> Indentation | Biphasic:
-        if get_law(law_name).biphasic:
+    def model(self, law_name, params, region_params=None, compliant_bottom=False) -> Indentation | Biphasic:
+        """The model of a law at `params`. A law with the ``bottom_slip`` term (``c_bottom``),
+        or `compliant_bottom`, puts a tangential spring on a fixed bottom instead of fixing
+        u_x, u_y there (at c_bottom = 0 the same to about 1e-6)."""
+        law = get_law(law_name)
+        if law.biphasic:
             return Biphasic(self.biphasic_space(), self.element_params(law_name, params, region_params),
                             punch=self.punch, support=self.support, drained=self.drained)
+        support = self.support
+        if compliant_bottom or "c_bottom" in law.free:
+            if self.support != "fixed":
+                raise ValueError(f"bottom slip is a compliance of a fixed bottom; this model's support is {self.support!r}")
+            support = "compliant"
+        if "k_punch" in law.free and self.punch != "frictionless":
+            raise ValueError(f"punch friction is a spring on a frictionless punch; this model's punch is {self.punch!r}")
         return Indentation(self.space, self.element_params(law_name, params, region_params),
-                           punch=self.punch, support=self.support)
+                           punch=self.punch, support=support)
 
     def biphasic_space(self) -> Space:
         """The space of biphasic laws: FEBio's 8-point rule unless the configured rule has

@@ -3,7 +3,12 @@
 Add a law by adding one entry to `LAWS`. Every law is a subset of the general form of the
 seed paper (Eqs. 9-11, plus the biphasic permeability of Eq. 7): parameters not listed as
 free take the value in `fixed`, or the neutral value of `NEUTRAL` (no quartic bulk term, no
-relaxation).
+relaxation, frictionless punch, bonded bottom).
+
+Boundary terms compose with any solid law by name: ``"SR+punch_friction"`` is SR with the
+tangential stiffness of the punch footprint ``k_punch`` as one more free parameter,
+``"elastic+bottom_slip"`` elastic with the tangential compliance of the bottom face
+``c_bottom`` (`TERMS`).
 """
 
 from __future__ import annotations
@@ -39,10 +44,21 @@ PARAMS = {p.name: p for p in [
     Param("k1", "1", 0.0, 0.999, "linear", "relative bulk relaxation amplitude", (0.05, 0.95)),
     Param("tau_k1", "s", 1e-4, 1e3, "log", "bulk relaxation time", (1e-2, 1e1)),
     Param("kappa", "m^4/(N s)", 1e-15, 1e-3, "log", "Darcy permeability of the biphasic mixture", (1e-10, 1e-5)),
+    Param("k_punch", "Pa/m", 0.0, 1e12, "log", "tangential stiffness of the punch footprint per area "
+          "(0: frictionless; above about 1e8: bonded)", (1e4, 1e9)),
+    Param("c_bottom", "m/Pa", 0.0, 1e-2, "log", "tangential compliance of the bottom face per area "
+          "(0: bonded; above about 1e-4: sliding)", (1e-8, 1e-4)),
 ]}
 
+# boundary terms that compose with any solid law ("LAW+term"): term -> (its parameters, defaults)
+TERMS = {
+    "punch_friction": (("k_punch",), {"k_punch": 1e6}),
+    "bottom_slip": (("c_bottom",), {"c_bottom": 1e-6}),
+}
+
 # value a parameter takes when a law does not have it
-NEUTRAL = {"D2": math.inf, "g1": 0.0, "tau_g1": 1.0, "k1": 0.0, "tau_k1": 1.0, "kappa": math.nan}
+NEUTRAL = {"D2": math.inf, "g1": 0.0, "tau_g1": 1.0, "k1": 0.0, "tau_k1": 1.0, "kappa": math.nan,
+           "k_punch": 0.0, "c_bottom": 0.0}
 
 
 @dataclass(frozen=True)
@@ -116,7 +132,22 @@ LAWS = {law.name: law for law in [
 
 
 def get_law(name: str) -> Law:
-    try:
+    """The law `name`: one of `LAWS`, or one of them with boundary terms, ``"SR+punch_friction"``."""
+    if name in LAWS:
         return LAWS[name]
-    except KeyError:
-        raise LawError(f"unknown law {name!r}; known laws: {', '.join(LAWS)}") from None
+    base, *terms = str(name).split("+")
+    if base not in LAWS:
+        raise LawError(f"unknown law {name!r}; known laws: {', '.join(LAWS)} "
+                       f"(optionally with + {' or + '.join(TERMS)})")
+    bad = [t for t in terms if t not in TERMS]
+    if bad or len(set(terms)) < len(terms):
+        raise LawError(f"law {name!r}: unknown or repeated term(s) {bad or terms}; boundary terms: {', '.join(TERMS)}")
+    law = LAWS[base]
+    if law.biphasic:
+        raise LawError(f"law {name!r}: the boundary terms are not built for the biphasic model")
+    extra = [p for t in terms for p in TERMS[t][0]]
+    defaults = dict(law.defaults)
+    for t in terms:
+        defaults.update(TERMS[t][1])
+    return Law(name, f"{law.description}, with {' and '.join(t.replace('_', ' ') for t in terms)}",
+               law.free + tuple(extra), fixed=dict(law.fixed), defaults=defaults)

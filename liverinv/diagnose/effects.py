@@ -5,14 +5,15 @@ model exactly the fitted one), the physical sign of the amplitude, the parameter
 undefined at the null and are scanned over a grid, how a full parameter set is moved along
 the amplitude (`variant`), and which law of `liverinv.laws` carries it when it is added.
 
-In this version the effects that the law table can express are available:
-``shear_relaxation``, ``bulk_relaxation``, ``nonlinear_bulk``, ``strain_stiffening``. The
-effects that need new forward-model terms (``poroelastic`` as a diagnosis of an elastic fit,
-``inclusion``, ``punch_friction``, ``bottom_slip``) are listed as not available, and every
-diagnosis says that they were not tested.
+Available: ``shear_relaxation``, ``bulk_relaxation``, ``nonlinear_bulk``,
+``strain_stiffening`` (parameters of the solid law, `liverinv.laws.PARAMS`) and
+``punch_friction``, ``bottom_slip`` (boundary terms that compose with any solid law,
+`liverinv.laws.TERMS`: the law "SR+punch_friction"). Not built yet: ``poroelastic`` as a
+diagnosis of a solid fit and ``inclusion``; every diagnosis says that they were not tested.
 
 Adding an effect: one more `Effect(...)` in `CATALOG` with its amplitude, sign, scan and the
-parameters it needs in a law.
+parameters it needs in a law (a new boundary term also needs its entry in `laws.TERMS` and
+its force in the model).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..laws import LAWS, PARAMS, get_law
+from ..laws import LAWS, PARAMS, TERMS, get_law
 
 __all__ = ["Effect", "CATALOG", "available_effects", "law_with", "TAU_GRID_S"]
 
@@ -80,14 +81,14 @@ CATALOG = {e.name: e for e in [
            "1/D2", "kPa", scale=1e3, needs=("D2",)),
     Effect("strain_stiffening", "the shear response stiffens with strain (second reduced-polynomial term C2)",
            "C2", "kPa", scale=1e3, needs=("C2",)),
+    Effect("punch_friction", "the punch face holds the tissue tangentially (friction: a tangential spring "
+           "on the footprint, k_punch)", "k_punch", "kPa/mm", scale=1e6, needs=("k_punch",)),
+    Effect("bottom_slip", "the bottom face slides (a tangential compliance of the support, c_bottom)",
+           "c_bottom", "mm/kPa", scale=1e-6, needs=("c_bottom",)),
     Effect("poroelastic", "fluid flows through the solid (Darcy, permeability kappa)", "kappa", "m^4/(N s)",
-           available=False, why_not="needs the biphasic model as a composable term of a solid law"),
+           available=False, why_not="needs the biphasic model as a composable term of a QLV solid law"),
     Effect("inclusion", "a sphere of other stiffness inside the tissue", "contrast", "1",
            available=False, why_not="needs regional parameter fields as a model term"),
-    Effect("punch_friction", "the punch face holds the tissue tangentially", "friction", "1",
-           available=False, why_not="needs tangential springs on the footprint as a model term"),
-    Effect("bottom_slip", "the bottom face slides", "slip", "1",
-           available=False, why_not="needs tangential compliance of the bottom face as a model term"),
 ]}
 
 
@@ -96,14 +97,19 @@ def available_effects(law: str, fixed=()) -> list[Effect]:
 
 
 def law_with(law: str, effects) -> tuple[str, dict]:
-    """The smallest law of `liverinv.laws` that has the parameters of `law` and of `effects`,
+    """The law with the parameters of `law` and of `effects`: the smallest solid law of
+    `liverinv.laws.LAWS` with the material parameters, plus the boundary terms (``+term``),
     and the values that hold its other parameters at their null (no quartic bulk term: D2 at
     its upper bound; no relaxation: amplitude 0)."""
-    need = set(get_law(law).free) | {p for e in effects for p in CATALOG[e].needs}
+    base, *terms = law.split("+")
+    terms = list(terms) + [e for e in effects if e in TERMS and e not in terms]
+    boundary = {p for t in terms for p in TERMS[t][0]}
+    need = (set(get_law(base).free) | {p for e in effects for p in CATALOG[e].needs}) - boundary
     candidates = [lw for lw in LAWS.values() if need <= set(lw.free) and not lw.biphasic and not lw.fixed]
     if not candidates:
         raise ValueError(f"no law has the parameters {sorted(need)}")
     best = min(candidates, key=lambda lw: len(lw.free))
     null = {"D2": PARAMS["D2"].upper, "g1": 0.0, "tau_g1": 1.0, "k1": 0.0, "tau_k1": 1.0}
     fixed = {k: null[k] for k in best.free if k not in need}
-    return best.name, fixed
+    order = [t for t in TERMS if t in terms]
+    return "+".join([best.name, *order]), fixed

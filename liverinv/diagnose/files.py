@@ -81,6 +81,9 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
             params=("step", [json.dumps(s["params"]) for s in steps],
                     {"long_name": "every parameter of the model at this step (JSON, SI)"}),
             recommended=("step", [s["diagnosis"]["recommended"] for s in steps]),
+            tried=("step", [json.dumps(s.get("trials", {})) for s in steps],
+                   {"long_name": "candidates refitted after this step's diagnosis, with their Phi and Phi_vol "
+                                 "(JSON); the lowest Phi is added at the next step"}),
             diagnosis=("step", [explain(s["diagnosis"]) for s in steps]),
             n_solves=("step", [s["n_solves"] for s in steps]),
         ),

@@ -50,10 +50,12 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
     predicted drop), `recommended` (an effect name or 'none') and what was done."""
     t0 = _time.perf_counter()
     law = objective.law
-    cands = [CATALOG[e] for e in effects] if effects else available_effects(law, objective.fixed)
     fm = objective.forward
+    cands = [CATALOG[e] for e in effects] if effects else available_effects(law, objective.fixed)
+    cands = [e for e in cands if e.name not in _held_already(fm)]
     base = {**params, **objective.fixed}
-    model = fm.model(law, base)
+    # testing bottom slip needs the bottom's tangential dofs free (a spring, bonded at c_bottom = 0)
+    model = fm.model(law, base, compliant_bottom=any(e.name == "bottom_slip" for e in cands))
     full = fm.element_params(law, base)
     dirs = []
     for name, ls in zip(fitted, log_scale):
@@ -105,12 +107,18 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
     ok = [row for row in rows if row["p_value"] < alpha and row["predicted_drop"] >= min_drop and row["physical"]]
     not_tested = {e.name: e.why_not for e in CATALOG.values() if not e.available}
     from .splits import misfit_splits
-    return dict(rows=rows, splits=misfit_splits(objective, r), recommended=ok[0]["effect"] if ok else "none", alpha=alpha, min_drop=min_drop,
+    return dict(rows=rows, splits=misfit_splits(objective, r), recommended=ok[0]["effect"] if ok else "none",
+                eligible=[row["effect"] for row in ok], alpha=alpha, min_drop=min_drop,
                 residual_check=float(np.sqrt(np.mean(r ** 2))), phi=float(ev.phi), phi_vol=float(ev.phi_vol),
                 phi_ind=float(ev.phi_ind), not_tested=not_tested, n_directions=len(dirs),
                 wall_s=_time.perf_counter() - t0,
                 scan="relaxation times over " + ", ".join(f"{v:g}" for v in
                                                             CATALOG["shear_relaxation"].scanned["tau_g1"]) + " s")
+
+
+def _held_already(fm) -> set:
+    """Boundary effects the model's own contact already has in full."""
+    return ({"punch_friction"} if fm.punch == "bonded" else set()) | ({"bottom_slip"} if fm.support != "fixed" else set())
 
 
 def _where(objective, z, n_vol):

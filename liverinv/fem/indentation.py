@@ -6,6 +6,12 @@ The bottom is fixed (u = 0) or sliding (u_z = 0, plus the three rigid-body const
 plane: u_x = u_y = 0 at the bottom node nearest the axis, u_y = 0 at the bottom node farthest
 along +x). The reduced residual's punch entry is the indenter force (positive compressive)
 minus the applied force.
+
+Partial friction and slip are tangential springs (`springs.FaceSpring`): the parameter
+``k_punch`` (Pa/m) on the footprint of a frictionless punch (0: frictionless), and, with
+``support="compliant"`` (u_z = 0 on the bottom, u_x and u_y free), a spring of stiffness
+``1 / (c_bottom + C_BONDED)`` on the bottom face (``c_bottom`` in m/Pa; 0: bonded to within
+C_BONDED, a compliance 1e-6 of the tissue's over a millimetre).
 """
 
 from __future__ import annotations
@@ -18,13 +24,15 @@ import numpy as np
 from .assembly import ReducedAssembler
 from .material import QLVState, element_stiffness, hyperelastic_terms, relaxation_factors
 from .space import Space
+from .springs import FaceSpring
 
 __all__ = ["Indentation", "Evaluation"]
 
 log = logging.getLogger(__name__)
 
 PUNCH_CONTACTS = ("frictionless", "bonded")
-SUPPORTS = ("fixed", "sliding")
+SUPPORTS = ("fixed", "sliding", "compliant")
+C_BONDED = 1e-12     # m/Pa: the compliant bottom's own compliance at c_bottom = 0
 
 
 @dataclass
@@ -36,6 +44,13 @@ class Evaluation:
     J_min: float
 
 
+def _scalar(v, name) -> float:
+    a = np.unique(np.asarray(v, dtype=float))
+    if a.size != 1:
+        raise ValueError(f"{name} must be one value for the whole face, not per element")
+    return float(a[0])
+
+
 class Indentation:
     """Finite-strain indentation model on a tet10 space.
 
@@ -45,7 +60,7 @@ class Indentation:
     params : dict of parameter name -> scalar or (ne,) array (per element), as resolved by
         `liverinv.laws.Law.resolve` (C1, C2, D1, D2, g1, tau_g1, k1, tau_k1).
     punch : "frictionless" or "bonded"
-    support : "fixed" or "sliding"
+    support : "fixed", "sliding" or "compliant" (tangential spring, parameter c_bottom)
     """
 
     def __init__(self, space: Space, params: dict, punch="frictionless", support="fixed"):
@@ -61,6 +76,8 @@ class Indentation:
         fixed = np.zeros((n, 3), dtype=bool)
         if support == "fixed":
             fixed[bottom] = True
+        elif support == "compliant":
+            fixed[bottom, 2] = True
         else:
             fixed[bottom, 2] = True
             X = mesh.points[bottom]
@@ -85,6 +102,8 @@ class Indentation:
         self.punch_positions = self.asm.positions(row=self.punch_index, col=self.punch_index)
         self.punch_diag = np.nonzero((self.asm.rows[self.punch_positions] == self.punch_index)
                                      & (self.asm.indices[self.punch_positions] == self.punch_index))[0]
+        self.punch_spring = FaceSpring(mesh.points, mesh.facets["footprint"], self.asm) if punch == "frictionless" else None
+        self.bottom_spring = FaceSpring(mesh.points, mesh.facets["bottom"], self.asm) if support == "compliant" else None
         self.set_params(params)
 
     # -- material ----------------------------------------------------------------------
@@ -102,6 +121,15 @@ class Indentation:
         self._g1, self._tau_g1 = p.get("g1", 0.0), p.get("tau_g1", 1.0)
         self._k1, self._tau_k1 = p.get("k1", 0.0), p.get("tau_k1", 1.0)
         self.viscous = bool(np.any(self._g1 > 0) or np.any(self._k1 > 0))
+        self.k_punch = _scalar(params.get("k_punch", 0.0), "k_punch")
+        c_bottom = _scalar(params.get("c_bottom", 0.0), "c_bottom")
+        if self.k_punch < 0 or c_bottom < 0:
+            raise ValueError("k_punch and c_bottom must be >= 0")
+        if self.k_punch > 0 and self.punch_spring is None:
+            raise ValueError("k_punch needs a frictionless punch (a bonded punch holds the footprint already)")
+        if c_bottom > 0 and self.bottom_spring is None:
+            raise ValueError("c_bottom needs support='compliant'")
+        self.k_bottom = 1.0 / (c_bottom + C_BONDED)
 
     def with_params(self, params: dict) -> "Indentation":
         """A copy with other parameters, sharing the space and assembler."""
@@ -126,10 +154,16 @@ class Indentation:
         S_iso, S_vol, terms, J = hyperelastic_terms(F, self._C1, self._C2, self._D1, self._D2inv)
         S, a_g, a_k = self._relaxed_stress(S_iso, S_vol, dt, state)
         r = self.asm.vector(sp.internal_force(F @ S))
+        springs = [(f, k) for f, k in ((self.punch_spring, self.k_punch), (self.bottom_spring, self.k_bottom))
+                   if f is not None and k > 0]
+        for f, k in springs:
+            r += f.force(k, q)
         K = None
         if tangent:
             Ke = element_stiffness(sp.dNdX, sp.dV, F, S, terms, a_g, a_k)
             K = self.asm.matrix(Ke)
+            for f, k in springs:
+                f.add_tangent(K, k)
         return Evaluation(r, K, S_iso, S_vol, float(J.min()))
 
     def _relaxed_stress(self, S_iso, S_vol, dt, st: QLVState):

@@ -1,0 +1,101 @@
+"""Punch friction and bottom slip as tangential springs: their limits are the frictionless,
+bonded, fixed and sliding models; their sensitivities at the null match differences of
+whole solves; laws compose with them by name."""
+
+import numpy as np
+import pytest
+
+from liverinv.diagnose.effects import law_with
+from liverinv.fem.sensitivity import Sensitivity
+from liverinv.fem.solver import solve_history
+from liverinv.fem.springs import tri6_mass
+from liverinv.forward import ForwardModel
+from liverinv.laws import LawError, get_law
+from liverinv.loading import ramp_history
+
+E = dict(C1=200.0, C2=5000.0, D1=1.5e-3)
+
+
+@pytest.fixture(scope="module")
+def mesh(tmp_path_factory):
+    from liverinv.meshgen import generate_indentation_mesh
+    return generate_indentation_mesh(tmp_path_factory.mktemp("m") / "tiny.msh", h_far=0.03, h_rim=0.004)
+
+
+def force(mesh, law, params, **contact):
+    fm = ForwardModel(mesh, **contact)
+    h = ramp_history(3e-3, 2e-3, frames=5, unload=False)
+    return solve_history(fm.model(law, params), h.time, h.value, "displacement").force[-1]
+
+
+def test_face_mass_integrates_area_and_first_moments(mesh):
+    """1' M 1 is the face area (Heron's formula per triangle) and 1' M x = int x dA (the
+    area-weighted centroids), on the footprint and the bottom."""
+    from liverinv.mesh import read_mesh
+    m = read_mesh(mesh)
+    for group in ("footprint", "bottom"):
+        tri = m.facets[group]
+        M = tri6_mass(m.points, tri)
+        c = m.points[tri[:, :3]]
+        a, b, e = (np.linalg.norm(c[:, i] - c[:, j], axis=1) for i, j in ((0, 1), (1, 2), (2, 0)))
+        s = (a + b + e) / 2
+        heron = np.sqrt(s * (s - a) * (s - b) * (s - e))
+        assert M.sum(axis=(1, 2)) == pytest.approx(heron, rel=1e-10)
+        f = c[..., 0] + 2.0 * c[..., 1]                 # a linear field at the corners,
+        x = np.concatenate([f, (f + np.roll(f, -1, axis=1)) / 2], axis=1)   # and at the edge midpoints
+        assert np.einsum("fab,fb->f", M, x) == pytest.approx(heron * f.mean(axis=1),
+                                                            rel=1e-9, abs=1e-16)
+
+
+def test_spring_limits_are_the_contact_models(mesh):
+    """Measured on the tiny mesh at 3 mm: fixed vs compliant at c_bottom 0 5e-9, sliding vs
+    c_bottom 1e-2 m/Pa 1.6e-4, bonded vs k_punch 1e12 Pa/m 3e-6 (relative force)."""
+    fixed = force(mesh, "elastic", E)
+    assert force(mesh, "elastic+punch_friction", dict(E, k_punch=0.0)) == fixed
+    assert force(mesh, "elastic+bottom_slip", dict(E, c_bottom=0.0)) == pytest.approx(fixed, rel=1e-6)
+    bonded = force(mesh, "elastic", E, punch="bonded")
+    sliding = force(mesh, "elastic", E, support="sliding")
+    assert bonded > 1.2 * fixed and sliding < 0.95 * fixed       # the limits differ from the base
+    assert force(mesh, "elastic+punch_friction", dict(E, k_punch=1e12)) == pytest.approx(bonded, rel=2e-5)
+    assert force(mesh, "elastic+bottom_slip", dict(E, c_bottom=1e-2)) == pytest.approx(sliding, rel=1e-3)
+    mid = force(mesh, "elastic+punch_friction", dict(E, k_punch=1e6))
+    assert fixed < mid < bonded
+
+
+@pytest.mark.parametrize("name, law, step", [("k_punch", "elastic+punch_friction", 1e3),
+                                             ("c_bottom", "elastic+bottom_slip", 1e-9)])
+def test_sensitivity_at_the_null_matches_differences_of_solves(mesh, name, law, step):
+    """d u / d(amplitude) at the null (0) against a Richardson forward difference
+    (amplitudes h and 2h) of whole solves."""
+    fm = ForwardModel(mesh)
+    hist = ramp_history(3e-3, 2e-3, frames=5, unload=True)
+    null = dict(E, **{name: 0.0})
+    model = fm.model(law, null)
+    u = lambda a: solve_history(fm.model(law, dict(E, **{name: a})), hist.time, hist.value, "displacement").u
+    u0, u1, u2 = u(0.0), u(step), u(2 * step)
+    fd = (4 * (u1 - u0) - (u2 - u0)) / (2 * step)
+    eps = step * 1e-6
+    sens = Sensitivity([model.with_params(fm.element_params(law, dict(E, **{name: eps})))], eps)
+    h = solve_history(model, hist.time, hist.value, "displacement", sensitivity=sens)
+    assert np.abs(fd).max() > 1e-3 * np.abs(u1 - u0).max() / step
+    assert np.abs(h.du[:, 0] - fd).max() < 2e-3 * np.abs(fd).max()
+
+
+def test_laws_compose_with_boundary_terms():
+    law = get_law("SR+punch_friction")
+    assert law.free == get_law("SR").free + ("k_punch",)
+    assert law.resolve(dict(law.defaults))["c_bottom"] == 0.0
+    assert get_law("elastic+punch_friction+bottom_slip").free[-2:] == ("k_punch", "c_bottom")
+    for bad in ["SR+friction", "SR+punch_friction+punch_friction", "PE+bottom_slip", "nope+bottom_slip"]:
+        with pytest.raises(LawError):
+            get_law(bad)
+    assert law_with("SR", ["punch_friction"]) == ("SR+punch_friction", {})
+    assert law_with("elastic", ["shear_relaxation", "bottom_slip"]) == ("SR+bottom_slip", {})
+    assert law_with("elastic+bottom_slip", ["punch_friction"]) == ("elastic+punch_friction+bottom_slip", {})
+
+
+def test_bad_contact_combinations_are_refused(mesh):
+    with pytest.raises(ValueError, match="frictionless punch"):
+        ForwardModel(mesh, punch="bonded").model("elastic+punch_friction", dict(E, k_punch=1e5))
+    with pytest.raises(ValueError, match="fixed bottom"):
+        ForwardModel(mesh, support="sliding").model("elastic+bottom_slip", dict(E, c_bottom=1e-6))
