@@ -20,14 +20,18 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 E = dict(C1=200.0, C2=5000.0, D1=1.5e-3)
 SR = dict(E, g1=0.4, tau_g1=0.5)
-# case -> (truth law, truth parameters, contact of the truth, base law of discover)
+INCLUSION = {"inclusions": [{"center_m": [0.002, 0.0, 0.0223], "radius_m": 0.005, "scale": {"C1": 3.0, "C2": 3.0}}]}
+# case -> (truth law, truth parameters, other keys of the truth study, base law of discover)
 CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic"),
          "bulk": ("BR", dict(E, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "elastic"),
-         "friction": ("elastic", E, {"punch": "bonded"}, "elastic"),
-         "slip": ("elastic", E, {"support": "sliding"}, "elastic"),
+         "friction": ("elastic", E, {"contact": {"punch": "bonded"}}, "elastic"),
+         "slip": ("elastic", E, {"contact": {"support": "sliding"}}, "elastic"),
+         "poro": ("PE", dict(E, kappa=1e-8), {}, "elastic"),
+         "inclusion": ("elastic", E, INCLUSION, "elastic"),
          "sr_null": ("SR", SR, {}, "SR"),
+         "sr_poro": ("PSR", dict(SR, kappa=1e-8), {}, "SR"),
          "sr_bulk": ("SBR", dict(SR, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "SR"),
-         "sr_friction": ("SR", SR, {"punch": "bonded"}, "SR")}
+         "sr_friction": ("SR", SR, {"contact": {"punch": "bonded"}}, "SR")}
 
 
 def mesh_file(name, out):
@@ -62,10 +66,10 @@ def main(argv=None):
     base = yaml.safe_load((ROOT / "config/truths/hidden_bulk.yaml").read_text())
     rows = []
     for case in args.cases:
-        law, params, contact, base_law = CASES[case]
+        law, params, extra, base_law = CASES[case]
         for seed in args.seeds:
             tag = f"{case}_s{seed}"
-            study = dict(base, mesh=str(tmesh), law=law, params=params, **({"contact": contact} if contact else {}))
+            study = dict(base, mesh=str(tmesh), law=law, params=params, **extra)
             study["imaging"] = dict(base["imaging"], seed=seed)
             (args.out / f"{tag}.yaml").write_text(yaml.safe_dump(study))
             b, f, d = args.out / f"{tag}.h5", args.out / f"{tag}_flow.nc", args.out / f"{tag}_disc.nc"

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ from .laws import get_law
 from .loading import LoadHistory
 from .mesh import TetMesh, read_mesh
 
-__all__ = ["ForwardModel", "simulate"]
+__all__ = ["ForwardModel", "Inclusion", "read_inclusions", "simulate"]
 
 log = logging.getLogger(__name__)
 
@@ -38,14 +39,18 @@ class ForwardModel:
         laws near the punch rim)
     drained : mesh groups with free draining (p = 0) for biphasic laws; other faces are
         impermeable
+    inclusions : spheres of other material, `Inclusion` or dicts ``{center_m, radius_m,
+        scale: {param: factor}}``: the listed parameters of the elements whose centroid lies
+        inside are multiplied by their factors (after `region_params`)
 
     Biphasic laws integrate with at least 8 points: FEBio's 8-point rule replaces the
     4- or 5-point rules (orders 2, 3), on which the u-p model fails near undrained states.
     """
 
     def __init__(self, mesh, punch="frictionless", support="fixed", quadrature_order=2,
-                 drained=DRAINED_DEFAULT):
+                 drained=DRAINED_DEFAULT, inclusions=()):
         self.mesh = mesh if isinstance(mesh, TetMesh) else read_mesh(mesh)
+        self.inclusions = [Inclusion.of(i) for i in inclusions]
         self.space = Space(self.mesh, intorder=quadrature_order)
         self.quadrature_order = quadrature_order
         self.punch, self.support = punch, support
@@ -54,20 +59,32 @@ class ForwardModel:
         self._space_biphasic = None
 
     def element_params(self, law_name, params, region_params=None) -> dict:
-        """Full parameter set of a law; `region_params` maps a region id (gmsh physical
-        tag of the volume) to overrides for the elements of that region."""
+        """Full parameter set of a law; `region_params` maps a region id (gmsh physical tag
+        of the volume) to overrides for the elements of that region; the inclusions scale
+        their elements' values."""
         law = get_law(law_name)
         full = law.resolve(params)
-        if not region_params:
+        fitted = [inc for inc in self.inclusions if inc.fitted]
+        if "inc_scale" in law.free and len(fitted) != 1:
+            raise ValueError(f"law {law_name!r} fits the contrast of one inclusion; the model has {len(fitted)} "
+                             "inclusions with scale 'fitted' (--inclusions)")
+        if not region_params and not self.inclusions:
             return full
         out = {k: np.full(self.mesh.n_elements, v, dtype=float) for k, v in full.items()}
-        for region, over in region_params.items():
+        for region, over in (region_params or {}).items():
             sel = self.mesh.cell_region == int(region)
             if not sel.any():
                 raise ValueError(f"region {region} has no elements; regions: {sorted(set(self.mesh.cell_region))}")
             merged = law.resolve({**{k: full[k] for k in law.free}, **over})
             for k in law.free:
                 out[k][sel] = merged[k]
+        for inc in self.inclusions:
+            sel = inc.elements(self.mesh)
+            scale = {"C1": full["inc_scale"], "C2": full["inc_scale"]} if inc.fitted else inc.scale
+            for k, f in scale.items():
+                if k not in out:
+                    raise ValueError(f"inclusion scales {k!r}, which is not a parameter")
+                out[k][sel] *= f
         return out
 
     def model(self, law_name, params, region_params=None, compliant_bottom=False) -> Indentation | Biphasic:
@@ -134,11 +151,62 @@ class ForwardModel:
         ds.attrs = provenance(
             law=law_name, params=params, region_params=region_params or {},
             control=history.control, punch=self.punch, support=self.support,
+            inclusions=[i.to_json() for i in self.inclusions],
             quadrature_points=int(getattr(h, "quadrature_points", self.space.nq)),
             **({"drained": list(self.drained)} if getattr(h, "p", None) is not None else {}),
             mesh=str(m.path) if m.path else "in-memory", mesh_sha256=self.mesh_sha256,
             solver=dict(h.timing), **(attrs or {}))
         return ds
+
+
+@dataclass(frozen=True)
+class Inclusion:
+    """A sphere of other material (centre and radius in m; parameter -> factor, or "fitted":
+    C1 and C2 scaled by the law's parameter inc_scale)."""
+    center_m: tuple
+    radius_m: float
+    scale: dict | str
+
+    @property
+    def fitted(self) -> bool:
+        return self.scale == "fitted"
+
+    @classmethod
+    def of(cls, spec) -> "Inclusion":
+        if isinstance(spec, cls):
+            return spec
+        c = tuple(float(v) for v in spec["center_m"])
+        r = float(spec["radius_m"])
+        if spec["scale"] == "fitted":
+            if len(c) != 3 or not r > 0:
+                raise ValueError(f"inclusion {spec}: needs center_m [x, y, z] and radius_m > 0")
+            return cls(c, r, "fitted")
+        scale = {str(k): float(v) for k, v in dict(spec["scale"]).items()}
+        if len(c) != 3 or not r > 0 or not scale or min(scale.values()) <= 0:
+            raise ValueError(f"inclusion {spec}: needs center_m [x, y, z], radius_m > 0 and positive scale factors")
+        return cls(c, r, scale)
+
+    def elements(self, mesh) -> np.ndarray:
+        """Elements whose centroid (of the corner nodes) lies inside the sphere."""
+        centroid = mesh.points[mesh.cells[:, :4]].mean(axis=1)
+        return np.linalg.norm(centroid - np.asarray(self.center_m), axis=1) < self.radius_m
+
+    def to_json(self) -> dict:
+        return {"center_m": list(self.center_m), "radius_m": self.radius_m,
+                "scale": self.scale if self.fitted else dict(self.scale)}
+
+
+def read_inclusions(text) -> list:
+    """Inclusions from JSON/YAML text or a file holding a list of ``{center_m, radius_m, scale}``
+    (or a mapping with that list under ``inclusions``)."""
+    import yaml
+    if not text:
+        return []
+    path = Path(str(text))
+    spec = yaml.safe_load(path.read_text() if path.is_file() else str(text))
+    if isinstance(spec, dict):
+        spec = spec.get("inclusions", [spec])
+    return [Inclusion.of(i) for i in spec]
 
 
 class _BiphasicRecord:

@@ -8,7 +8,8 @@ relaxation, frictionless punch, bonded bottom).
 Boundary terms compose with any solid law by name: ``"SR+punch_friction"`` is SR with the
 tangential stiffness of the punch footprint ``k_punch`` as one more free parameter,
 ``"elastic+bottom_slip"`` elastic with the tangential compliance of the bottom face
-``c_bottom`` (`TERMS`).
+``c_bottom``, ``"elastic+inclusion"`` elastic with the stiffness contrast ``inc_scale`` of a
+sphere that the forward model holds (`forward.Inclusion` with scale "fitted") (`TERMS`).
 """
 
 from __future__ import annotations
@@ -48,17 +49,20 @@ PARAMS = {p.name: p for p in [
           "(0: frictionless; above about 1e8: bonded)", (1e4, 1e9)),
     Param("c_bottom", "m/Pa", 0.0, 1e-2, "log", "tangential compliance of the bottom face per area "
           "(0: bonded; above about 1e-4: sliding)", (1e-8, 1e-4)),
+    Param("inc_scale", "1", 0.02, 50.0, "log", "stiffness contrast of the fitted inclusion (C1 and C2 inside "
+          "over outside; its sphere is the forward model's)", (0.2, 5.0)),
 ]}
 
 # boundary terms that compose with any solid law ("LAW+term"): term -> (its parameters, defaults)
 TERMS = {
     "punch_friction": (("k_punch",), {"k_punch": 1e6}),
     "bottom_slip": (("c_bottom",), {"c_bottom": 1e-6}),
+    "inclusion": (("inc_scale",), {"inc_scale": 1.0}),
 }
 
 # value a parameter takes when a law does not have it
 NEUTRAL = {"D2": math.inf, "g1": 0.0, "tau_g1": 1.0, "k1": 0.0, "tau_k1": 1.0, "kappa": math.nan,
-           "k_punch": 0.0, "c_bottom": 0.0}
+           "k_punch": 0.0, "c_bottom": 0.0, "inc_scale": 1.0}
 
 
 @dataclass(frozen=True)
@@ -128,6 +132,9 @@ LAWS = {law.name: law for law in [
     Law("PE", "biphasic poroelastic: reduced polynomial skeleton (Eq. 6) saturated by a Darcy "
         "fluid of permeability kappa (Eq. 7)", ("C1", "C2", "D1", "kappa"),
         defaults=dict(_HYPER, kappa=1e-7), biphasic=True),
+    Law("PSR", "biphasic poroelastic with a QLV skeleton: PE whose skeleton relaxes in shear as SR",
+        ("C1", "C2", "D1", "g1", "tau_g1", "kappa"),
+        defaults=dict(_HYPER, g1=0.4, tau_g1=0.06, kappa=1e-7), biphasic=True),
 ]}
 
 
@@ -143,11 +150,11 @@ def get_law(name: str) -> Law:
     if bad or len(set(terms)) < len(terms):
         raise LawError(f"law {name!r}: unknown or repeated term(s) {bad or terms}; boundary terms: {', '.join(TERMS)}")
     law = LAWS[base]
-    if law.biphasic:
-        raise LawError(f"law {name!r}: the boundary terms are not built for the biphasic model")
+    if law.biphasic and set(terms) - {"inclusion"}:
+        raise LawError(f"law {name!r}: punch friction and bottom slip are not built for the biphasic model")
     extra = [p for t in terms for p in TERMS[t][0]]
     defaults = dict(law.defaults)
     for t in terms:
         defaults.update(TERMS[t][1])
     return Law(name, f"{law.description}, with {' and '.join(t.replace('_', ' ') for t in terms)}",
-               law.free + tuple(extra), fixed=dict(law.fixed), defaults=defaults)
+               law.free + tuple(extra), fixed=dict(law.fixed), defaults=defaults, biphasic=law.biphasic)

@@ -169,6 +169,7 @@ def simulate_study(study: dict, base_dir: Path = Path("."), extra_times=None):
     fm = ForwardModel(_resolve(study["mesh"], base_dir), contact.get("punch", "frictionless"),
                       contact.get("support", "fixed"),
                       quadrature_order=study.get("solver", {}).get("quadrature_order", 2),
+                      inclusions=study.get("inclusions", ()),
                       **({"drained": study["drainage"]["drained"]} if "drained" in study.get("drainage", {}) else {}))
     loading = study["loading"]
     hist = history_of(loading, base_dir)

@@ -80,6 +80,25 @@ def test_tangent_matches_finite_differences():
         assert np.allclose(K[:, j], fd, rtol=1e-5, atol=1e-6 * np.abs(K).max()), j
 
 
+def test_viscous_skeleton_tangent_matches_finite_differences():
+    """The same with a QLV skeleton (shear and bulk Prony terms) and a history state."""
+    mesh = column_mesh(4e-3, 4e-3, 1, 2)
+    m = Biphasic(Space(mesh), dict(PE, kappa=3e-7, g1=0.4, tau_g1=0.2, k1=0.3, tau_k1=0.5), side="free",
+                 drained=("side",))
+    rng = np.random.default_rng(2)
+    q = rng.normal(size=m.n_red) * 1e-4
+    q[m.n_free + 1:] = rng.normal(size=m.n_red - m.n_free - 1) * 50.0 / m.s
+    st = m.state_after(m.new_state(), 0.5 * q, 0.1)          # a history with nonzero Prony integrals
+    assert np.abs(st.H_iso).max() > 0
+    K = m.evaluate(q, 0.3, st, True).K.toarray()
+    for j in rng.choice(m.n_red, 25, replace=False).tolist() + [m.punch_index, m.n_red - 1]:
+        h = 1e-7 * max(1e-4, abs(q[j]))
+        dq = np.zeros(m.n_red)
+        dq[j] = h
+        fd = (m.evaluate(q + dq, 0.3, st, False).r - m.evaluate(q - dq, 0.3, st, False).r) / (2 * h)
+        assert np.allclose(K[:, j], fd, rtol=1e-5, atol=1e-6 * np.abs(K).max()), j
+
+
 def _terzaghi_run(nz=20):
     H, W = 0.01, 2e-3
     mesh = column_mesh(W, H, 1, nz)
@@ -156,6 +175,18 @@ def test_drained_limit_is_elastic(coarse_mesh):
     hb = solve_history(m, t, d, options=NewtonOptions(method="full"))
     assert np.allclose(hb.force, he.force, rtol=1e-4, atol=1e-7)
     assert np.abs(m.pressure(hb.q)).max() < 1e-3 * 2 * SOLID["C1"]
+
+
+def test_drained_limit_of_a_viscous_skeleton_is_qlv(coarse_mesh):
+    """A QLV skeleton with very large permeability relaxes as the QLV solid (load, hold)."""
+    sp = Space(coarse_mesh)
+    t = np.r_[np.linspace(0, 0.5, 6), 0.6, 0.8, 1.2]
+    d = np.minimum(t / 0.5, 1.0) * 2e-3
+    qlv = dict(SOLID, g1=0.4, tau_g1=0.3, k1=0.3, tau_k1=0.2)
+    he = solve_history(Indentation(sp, qlv), t, d)
+    hb = solve_history(Biphasic(sp, dict(qlv, kappa=1e-2)), t, d, options=NewtonOptions(method="full"))
+    assert he.force[-1] < 0.9 * he.force[5]                # it relaxes
+    assert np.allclose(hb.force, he.force, rtol=1e-4, atol=1e-7)
 
 
 def test_relaxation_at_fixed_depth_and_fluid_mass_balance(coarse_mesh):

@@ -10,7 +10,8 @@ from liverinv.forward import ForwardModel
 from liverinv.loading import ramp_history
 
 LAWS = {"PE": dict(C1=200.0, C2=5000.0, D1=1.5e-3, kappa=1e-7),           # history: J_n
-        "SR": dict(C1=200.0, C2=5000.0, D1=1.5e-3, g1=0.4, tau_g1=0.5)}  # history: Prony integrals
+        "SR": dict(C1=200.0, C2=5000.0, D1=1.5e-3, g1=0.4, tau_g1=0.5),  # history: Prony integrals
+        "PSR": dict(C1=200.0, C2=5000.0, D1=1.5e-3, g1=0.4, tau_g1=0.5, kappa=1e-7)}  # both
 
 
 @pytest.fixture(scope="module")

@@ -41,7 +41,7 @@ def objective_of_fit(fit, bundle, flow, mesh, model_mesh=None, observation=None,
     obj, _ = objective_from_files(bundle, flow, mesh, law, fixed, mm, ds.attrs.get("objective", "likelihood"),
                                   observation or ds.attrs.get("observation") or None,
                                   noise and noise["force_N"], noise and noise["depth_m"], noise and noise["tracking_m"],
-                                  quadrature_order)
+                                  quadrature_order, inclusions=json.loads(ds.attrs.get("inclusions") or "[]"))
     params = {str(k): float(v) for k, v in zip(ds.param.values, ds.best.values)}
     return obj, params, ds
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from . import INCLUSIONS_HELP
+
 
 def register(sub):
     p = sub.add_parser("discover", help="base fit, then diagnose / add / refit until nothing is missing",
@@ -18,6 +20,7 @@ def register(sub):
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
     p.add_argument("--start", action="append", default=[], metavar="NAME=VALUE")
     p.add_argument("--max-steps", type=int, default=3)
+    p.add_argument("--inclusions", metavar="JSON|FILE", help="known inclusions of the base model; " + INCLUSIONS_HELP)
     p.add_argument("--out", type=Path, required=True, help="DISCOVERY.nc")
     p.add_argument("--figures", type=Path, help="folder for the discovery figure")
     p.set_defaults(func=run)
@@ -32,7 +35,7 @@ def run(args) -> int:
     from ..fileio import write_netcdf
     from ..identify.setup import objective_from_files
     from ..laws import LawError, get_law
-    from . import parse_assignments
+    from . import inclusions_arg, parse_assignments
 
     try:
         get_law(args.law)
@@ -41,12 +44,14 @@ def run(args) -> int:
     if args.max_steps < 0:
         raise UserError("--max-steps must be >= 0")
     start = {**get_law(args.law).defaults, **parse_assignments(args.start, "--start")}
+    inclusions = inclusions_arg(args.inclusions)
 
     def objective_for(law, fixed, noise):
         obj, _ = objective_from_files(args.bundle, args.flow, args.mesh, law, fixed, args.model_mesh, "likelihood",
                                       args.observation, None if noise is None else noise.force_N,
                                       None if noise is None else noise.depth_m,
-                                      None if noise is None else noise.tracking_m, args.quadrature_order)
+                                      None if noise is None else noise.tracking_m, args.quadrature_order,
+                                      inclusions=inclusions)
         if noise is not None:
             obj = obj.with_noise(replace(obj.noise, sources=noise.sources))
         return obj

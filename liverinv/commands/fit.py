@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 from ..cli import UserError
-from . import parse_assignments
+from . import INCLUSIONS_HELP, inclusions_arg, parse_assignments
 
 
 def _positive_int(text):
@@ -63,6 +63,7 @@ def register(sub):
                         "(one solve per evaluation; default) or forward differences (1 + n solves)")
     p.add_argument("--checkpoint", help="folder for the evaluation log; an interrupted fit resumes from it")
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
+    p.add_argument("--inclusions", metavar="JSON|FILE", help=INCLUSIONS_HELP)
     p.add_argument("--out", required=True, help="fit file (netCDF)")
     p.add_argument("--fresh-checkpoint", action="store_true",
                    help="if --checkpoint holds solves of other inputs, set it aside (renamed *.stale-N) and start anew")
@@ -113,7 +114,7 @@ def _binding(args, law, fixed, noise, flow_path):
                 model_mesh=file_sha256(args.model_mesh) if args.model_mesh else "",
                 law=law, fixed=fixed, objective=args.objective, observation=args.observation,
                 quadrature_order=args.quadrature_order, noise=noise.to_json() if noise is not None else "",
-                indenter_only=bool(args.indenter_only))
+                indenter_only=bool(args.indenter_only), inclusions=args.inclusions or "")
 
 
 def _run(args) -> int:
@@ -132,7 +133,8 @@ def _run(args) -> int:
         law.resolve({**start, **fixed})
         obj, args.observation = objective_from_files(
             args.bundle, args.flow, args.mesh, args.law, fixed, args.model_mesh, args.objective, args.observation,
-            args.noise_force, args.noise_depth, args.noise_tracking, args.quadrature_order, args.indenter_only)
+            args.noise_force, args.noise_depth, args.noise_tracking, args.quadrature_order, args.indenter_only,
+            inclusions_arg(args.inclusions))
         noise = obj.noise
         binding = _binding(args, args.law, fixed, noise, args.flow)
         if args.checkpoint and args.fresh_checkpoint:
@@ -168,6 +170,7 @@ def _run(args) -> int:
                                                    stages=json.dumps(result.get("stages", [])),
                                                    jacobian=args.jacobian if args.method == "least-squares" else "",
                                                    indenter_only=int(args.indenter_only),
+                                                   inclusions=json.dumps([i.to_json() for i in obj.forward.inclusions]),
                                                    model_mesh_sha256=file_sha256(args.model_mesh or args.mesh)))
     write_netcdf(ds, args.out)
     best_p = ", ".join(f"{k}={v:.4g}" for k, v in zip(ds.param.values, ds.best.values))

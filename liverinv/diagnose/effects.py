@@ -8,8 +8,11 @@ the amplitude (`variant`), and which law of `liverinv.laws` carries it when it i
 Available: ``shear_relaxation``, ``bulk_relaxation``, ``nonlinear_bulk``,
 ``strain_stiffening`` (parameters of the solid law, `liverinv.laws.PARAMS`) and
 ``punch_friction``, ``bottom_slip`` (boundary terms that compose with any solid law,
-`liverinv.laws.TERMS`: the law "SR+punch_friction"). Not built yet: ``poroelastic`` as a
-diagnosis of a solid fit and ``inclusion``; every diagnosis says that they were not tested.
+`liverinv.laws.TERMS`: the law "SR+punch_friction"), and ``poroelastic`` (Darcy flow through
+an elastic or SR skeleton: the laws PE and PSR; tested on a biphasic model at the drained
+null, kappa = `KAPPA_DRAINED`, amplitude 1/kappa), and ``inclusion`` (C1 and C2 scaled by
+inc_scale in a sphere; the sphere is scanned over `inclusion_grid`, the contrast tested in
+both directions; refitted as the law "+inclusion" with the best sphere held in the model).
 
 Adding an effect: one more `Effect(...)` in `CATALOG` with its amplitude, sign, scan and the
 parameters it needs in a law (a new boundary term also needs its entry in `laws.TERMS` and
@@ -24,9 +27,13 @@ import numpy as np
 
 from ..laws import LAWS, PARAMS, TERMS, get_law
 
-__all__ = ["Effect", "CATALOG", "available_effects", "law_with", "TAU_GRID_S"]
+__all__ = ["Effect", "CATALOG", "available_effects", "law_with", "TAU_GRID_S", "KAPPA_DRAINED"]
 
 TAU_GRID_S = tuple(float(v) for v in np.logspace(-2, 1, 7))     # 0.01 .. 10 s, 2 per decade
+INCLUSION_OFFSETS_M = (-5e-3, 0.0, 5e-3)
+INCLUSION_DEPTHS_M = (4e-3, 9e-3, 14e-3)
+INCLUSION_RADII_M = (3.5e-3, 6e-3)
+KAPPA_DRAINED = 1e-3    # m^4/(N s): the poroelastic null (consolidation time ~1e-4 s on a 1 cm body)
 
 
 @dataclass(frozen=True)
@@ -41,35 +48,69 @@ class Effect:
     needs: tuple = ()             # law parameters the effect adds
     available: bool = True
     why_not: str = ""
+    model: str = "solid"          # the model its direction is computed on: "solid" or "biphasic"
+    geometric: bool = False       # scanned over spheres of the mesh (an inclusion)
 
     def applies_to(self, law: str, fixed=()) -> bool:
         """The law lacks the effect (its parameters are absent, or held at their null)."""
         return self.available and not set(self.needs) <= (set(get_law(law).free) - set(fixed))
 
-    def scan_points(self) -> list[dict]:
+    def scan_points(self, fm=None) -> list[dict]:
+        if self.geometric:
+            return inclusion_grid(fm.mesh)
         if not self.scanned:
             return [{}]
         (name, grid), = self.scanned.items()
         return [{name: float(v)} for v in grid]
 
-    def variant(self, full: dict, eps: float, scan: dict) -> dict:
+    def variant(self, full: dict, eps: float, scan: dict, fm=None) -> dict:
         """A full parameter set moved by `eps` along the amplitude (in units of `unit`)."""
         p = dict(full)
+        if self.geometric:
+            from ..forward import Inclusion
+            inside = Inclusion(tuple(scan["center_m"]), scan["radius_m"], {}).elements(fm.mesh)
+            for k in ("C1", "C2"):
+                p[k] = np.broadcast_to(np.asarray(full[k], float), inside.shape) * np.where(inside, 1.0 + eps, 1.0)
+            return p
         p.update(scan)
         if self.amplitude == "1/D2":
             p["D2"] = 1.0 / (eps * self.scale)
+        elif self.amplitude == "1/kappa":
+            p["kappa"] = 1.0 / (1.0 / KAPPA_DRAINED + eps * self.scale)
         else:
             p[self.amplitude] = eps * self.scale
         return p
 
+    def physical(self, theta: float) -> bool:
+        """Is the one-step amplitude `theta` physical (two-sided effects: a positive stiffness)?"""
+        return theta > -0.95 if self.sign == 0 else theta * self.sign > 0
+
     def estimate(self, theta: float, scan: dict) -> dict:
         """The effect's parameters (SI) for an amplitude `theta` (units of `unit`)."""
+        if self.geometric:
+            return {"inc_scale": float(1.0 + theta), "inclusion_center_m": [float(v) for v in scan["center_m"]],
+                    "inclusion_radius_m": float(scan["radius_m"])}
         out = dict(scan)
         if self.amplitude == "1/D2":
             out["D2"] = float(1.0 / (theta * self.scale)) if theta > 0 else float("inf")
+        elif self.amplitude == "1/kappa":
+            out["kappa"] = float(1.0 / (1.0 / KAPPA_DRAINED + theta * self.scale)) if theta > 0 else KAPPA_DRAINED
         else:
             out[self.amplitude] = float(theta * self.scale)
         return out
+
+
+def inclusion_grid(mesh) -> list[dict]:
+    """Spheres scanned for an inclusion: centres on the punch axis and 5 mm beside it in x and
+    y, 4, 9 and 14 mm below the top face; radii 3.5 and 6 mm (54 spheres)."""
+    top = float(mesh.points[:, 2].max())
+    out = []
+    for r in INCLUSION_RADII_M:
+        for z in INCLUSION_DEPTHS_M:
+            for x in INCLUSION_OFFSETS_M:
+                for y in INCLUSION_OFFSETS_M:
+                    out.append({"center_m": [x, y, top - z], "radius_m": r})
+    return out
 
 
 CATALOG = {e.name: e for e in [
@@ -85,15 +126,24 @@ CATALOG = {e.name: e for e in [
            "on the footprint, k_punch)", "k_punch", "kPa/mm", scale=1e6, needs=("k_punch",)),
     Effect("bottom_slip", "the bottom face slides (a tangential compliance of the support, c_bottom)",
            "c_bottom", "mm/kPa", scale=1e-6, needs=("c_bottom",)),
-    Effect("poroelastic", "fluid flows through the solid (Darcy, permeability kappa)", "kappa", "m^4/(N s)",
-           available=False, why_not="needs the biphasic model as a composable term of a QLV solid law"),
-    Effect("inclusion", "a sphere of other stiffness inside the tissue", "contrast", "1",
-           available=False, why_not="needs regional parameter fields as a model term"),
+    Effect("poroelastic", "fluid flows through the solid and carries part of the load (biphasic, Darcy "
+           "permeability kappa)", "1/kappa", "1e7 N s/m^4", scale=1e7, needs=("kappa",), model="biphasic"),
+    Effect("inclusion", "a sphere of other stiffness inside the tissue (C1 and C2 scaled by inc_scale inside)",
+           "inc_scale - 1", "1", sign=0.0, needs=("inc_scale",), geometric=True),
 ]}
 
 
 def available_effects(law: str, fixed=()) -> list[Effect]:
-    return [e for e in CATALOG.values() if e.applies_to(law, fixed)]
+    """The effects `law` lacks and that some law can add to it."""
+    out = []
+    for e in CATALOG.values():
+        if e.applies_to(law, fixed):
+            try:
+                get_law(law_with(law, [e.name])[0])
+            except ValueError:
+                continue
+            out.append(e)
+    return out
 
 
 def law_with(law: str, effects) -> tuple[str, dict]:
@@ -105,11 +155,12 @@ def law_with(law: str, effects) -> tuple[str, dict]:
     terms = list(terms) + [e for e in effects if e in TERMS and e not in terms]
     boundary = {p for t in terms for p in TERMS[t][0]}
     need = (set(get_law(base).free) | {p for e in effects for p in CATALOG[e].needs}) - boundary
-    candidates = [lw for lw in LAWS.values() if need <= set(lw.free) and not lw.biphasic and not lw.fixed]
+    candidates = [lw for lw in LAWS.values() if need <= set(lw.free) and lw.biphasic == ("kappa" in need)
+                  and not lw.fixed]
     if not candidates:
         raise ValueError(f"no law has the parameters {sorted(need)}")
     best = min(candidates, key=lambda lw: len(lw.free))
-    null = {"D2": PARAMS["D2"].upper, "g1": 0.0, "tau_g1": 1.0, "k1": 0.0, "tau_k1": 1.0}
+    null = {"D2": PARAMS["D2"].upper, "g1": 0.0, "tau_g1": 1.0, "k1": 0.0, "tau_k1": 1.0, "kappa": KAPPA_DRAINED}
     fixed = {k: null[k] for k in best.free if k not in need}
     order = [t for t in TERMS if t in terms]
     return "+".join([best.name, *order]), fixed

@@ -13,11 +13,15 @@ from ..fileio import provenance
 __all__ = ["diagnosis_dataset", "discovery_dataset", "explain"]
 
 
+def _fmt(v) -> str:
+    return "[" + ", ".join(f"{x:.3g}" for x in v) + "]" if isinstance(v, (list, tuple)) else f"{v:.3g}"
+
+
 def explain(d: dict, n=3) -> str:
     """The top `n` candidates in plain words."""
     lines = []
     for row in d["rows"][:n]:
-        est = ", ".join(f"{k} = {v:.3g}" for k, v in row["estimate"].items())
+        est = ", ".join(f"{k} = {_fmt(v)}" for k, v in row["estimate"].items())
         verdict = ("recommended" if row["effect"] == d["recommended"] else
                    "not recommended: " + ("its one-step estimate has the wrong sign" if not row["physical"] else
                                           f"p = {row['p_value']:.2g} >= {d['alpha']}" if row["p_value"] >= d["alpha"]

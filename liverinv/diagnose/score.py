@@ -26,9 +26,9 @@ import time as _time
 import numpy as np
 from scipy import stats
 
-from .effects import CATALOG, available_effects
+from .effects import CATALOG, INCLUSION_DEPTHS_M, INCLUSION_RADII_M, KAPPA_DRAINED, available_effects
 
-__all__ = ["diagnose", "ALPHA", "MIN_DROP"]
+__all__ = ["diagnose", "refine_inclusion", "ALPHA", "MIN_DROP"]
 
 ALPHA = 0.01        # family-wise level of the scan-corrected one-sided test
 MIN_DROP = 0.01     # an effect must be predicted to remove this fraction of Phi_vol
@@ -43,11 +43,12 @@ def _orthogonal(X, Z):
 
 
 def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, effects=None,
-             alpha=ALPHA, min_drop=MIN_DROP) -> dict:
+             alpha=ALPHA, min_drop=MIN_DROP, scans=None) -> dict:
     """Score tests of the candidate `effects` (default: every available effect the law lacks)
     for the fit `params` of `objective.law` (`fitted`: the names that were identified,
     `log_scale`: their normalization). Returns a dict with `rows` (one per effect, ranked by
-    predicted drop), `recommended` (an effect name or 'none') and what was done."""
+    predicted drop), `recommended` (an effect name or 'none') and what was done. `scans` maps
+    an effect to its own scan points (e.g. a finer sphere grid, `refine_inclusion`)."""
     t0 = _time.perf_counter()
     law = objective.law
     fm = objective.forward
@@ -62,17 +63,37 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
         p = dict(full)
         p[name] = full[name] * 10 ** EPS if ls else full[name] + EPS
         dirs.append(p)
+    solid = [e for e in cands if e.model == "solid"]
+    biphasic = [e for e in cands if e.model == "biphasic"]
     cols = []
-    for e in cands:
-        for scan in e.scan_points():
-            dirs.append(e.variant(full, EPS, scan))
+    for e in solid:
+        for scan in (scans or {}).get(e.name) or e.scan_points(fm):
+            dirs.append(e.variant(full, EPS, scan, fm))
             cols.append((e, scan))
     ev = objective.evaluate_model(dict(params), model, [model.with_params(d) for d in dirs], EPS)
     if not ev.ok:
         raise ValueError(f"the forward solve at the fit's optimum failed: {ev.message}")
     r, J = ev.residual, ev.jacobian
     k = len(fitted)
-    Z = _orthogonal(J[:, :k], J[:, k:])
+    Zraw = [J[:, k:]]
+    n_solves = 1
+    if biphasic:
+        # the directions of Darcy flow: a biphasic model of the fitted skeleton at the drained
+        # null, on the fit's own quadrature (adequate when drained), with the same contact
+        from ..fem.biphasic import Biphasic
+        bfull = dict(full, kappa=KAPPA_DRAINED)
+        bmodel = Biphasic(fm.space, bfull, punch=fm.punch, support=fm.support, drained=fm.drained)
+        bdirs = []
+        for e in biphasic:
+            for scan in e.scan_points(fm):
+                bdirs.append(e.variant(bfull, EPS, scan, fm))
+                cols.append((e, scan))
+        evb = objective.evaluate_model(dict(params), bmodel, [bmodel.with_params(d) for d in bdirs], EPS)
+        if not evb.ok:
+            raise ValueError(f"the drained biphasic solve at the fit's optimum failed: {evb.message}")
+        Zraw.append(evb.jacobian)
+        n_solves += 1
+    Z = _orthogonal(J[:, :k], np.hstack(Zraw))
     groups = objective.residual_groups()
     s = Z.T @ r
     zz = np.einsum("ij,ij->j", Z, Z)
@@ -81,6 +102,13 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
     G = np.zeros((g_idx.max() + 1, Z.shape[1]))
     np.add.at(G, g_idx, Z * r[:, None])
     V = np.einsum("gj,gj->j", G, G)
+    # a localized direction (an inclusion) lives in one or two groups, where the residual holds
+    # the effect itself: the cluster-robust variance is then about the score squared (t ~ 1).
+    # Its variance is instead the pooled one, sigma^2 D z'z, with the design effect D of the
+    # residual's correlation measured by the fitted directions X (spread over every group).
+    geo = np.array([c[0].geometric for c in cols], bool)
+    if geo.any():
+        V[geo] = _pooled_variance(J[:, :k], r, g_idx) * zz[geo]
     n_vol = objective.v_of.size
     rows = []
     for e in cands:
@@ -88,13 +116,14 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
         best = None
         for i in idx:
             theta = -s[i] / zz[i] if zz[i] > 0 else 0.0
-            physical = theta * e.sign > 0
+            physical = e.physical(theta)
             drop = s[i] ** 2 / zz[i] if (zz[i] > 0 and physical) else 0.0
-            t = (-np.sign(e.sign) * s[i]) / np.sqrt(V[i]) if V[i] > 0 else 0.0
+            # one-sided in the physical direction; two-sided (|t|, p doubled) for either sign
+            t = ((abs(s[i]) if e.sign == 0 else -np.sign(e.sign) * s[i]) / np.sqrt(V[i])) if V[i] > 0 else 0.0
             cand = dict(i=i, theta=theta, physical=physical, drop=drop, t=t, scan=cols[i][1])
             if best is None or cand["drop"] > best["drop"] or (cand["drop"] == best["drop"] == 0 and t > best["t"]):
                 best = cand
-        p_raw = float(stats.norm.sf(best["t"]))
+        p_raw = float(min(1.0, stats.norm.sf(best["t"]) * (2.0 if e.sign == 0 else 1.0)))
         p_adj = float(min(1.0, p_raw * len(idx)))
         rows.append(dict(effect=e.name, description=e.description,
                          predicted_drop=float(best["drop"] / phi_vol) if phi_vol > 0 else 0.0,
@@ -110,10 +139,38 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
     return dict(rows=rows, splits=misfit_splits(objective, r), recommended=ok[0]["effect"] if ok else "none",
                 eligible=[row["effect"] for row in ok], alpha=alpha, min_drop=min_drop,
                 residual_check=float(np.sqrt(np.mean(r ** 2))), phi=float(ev.phi), phi_vol=float(ev.phi_vol),
-                phi_ind=float(ev.phi_ind), not_tested=not_tested, n_directions=len(dirs),
+                phi_ind=float(ev.phi_ind), not_tested=not_tested, n_directions=len(cols) + k, n_solves=n_solves,
                 wall_s=_time.perf_counter() - t0,
                 scan="relaxation times over " + ", ".join(f"{v:g}" for v in
-                                                            CATALOG["shear_relaxation"].scanned["tau_g1"]) + " s")
+                                                            CATALOG["shear_relaxation"].scanned["tau_g1"])
+                     + " s; inclusion spheres of radius " + ", ".join(f"{1e3 * v:g}" for v in INCLUSION_RADII_M)
+                     + " mm centred on and 5 mm beside the punch axis, " + ", ".join(
+                         f"{1e3 * v:g}" for v in INCLUSION_DEPTHS_M) + " mm deep; p-values Bonferroni over each "
+                     "effect's scan")
+
+
+def refine_inclusion(objective, params, fitted, log_scale, phi_vol, estimate, step=2.5e-3) -> dict:
+    """The inclusion's sphere on a grid 2.5 mm finer around the scan's best (27 centres, radii
+    0.8 and 1 times its radius), from one more solve: the estimate of the best of them. (Its
+    p-value is not reported: the refinement selects on the coarse scan's result.)"""
+    c, r = np.asarray(estimate["inclusion_center_m"]), float(estimate["inclusion_radius_m"])
+    grid = [{"center_m": list(c + step * np.array([i, j, k])), "radius_m": rr}
+            for rr in (0.8 * r, r) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)]
+    d = diagnose(objective, params, fitted, log_scale, phi_vol, effects=["inclusion"], scans={"inclusion": grid})
+    return d["rows"][0]["estimate"] or estimate
+
+
+def _pooled_variance(X, r, g_idx) -> float:
+    """sigma^2 D: the residual's variance times the design effect of its correlation within
+    the groups, measured on the fitted directions X: sum_g (X_g' r_g)^2 / sum X'X per
+    column, averaged over the columns (at least sigma^2: no correlation)."""
+    sigma2 = float(r @ r / r.size)
+    if X.shape[1] == 0:
+        return sigma2
+    G = np.zeros((g_idx.max() + 1, X.shape[1]))
+    np.add.at(G, g_idx, X * r[:, None])
+    ratio = np.einsum("gj,gj->j", G, G) / np.einsum("ij,ij->j", X, X)
+    return float(max(sigma2, np.mean(ratio)))
 
 
 def _held_already(fm) -> set:

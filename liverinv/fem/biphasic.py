@@ -11,7 +11,9 @@ Constitutive relations, with F = I + Grad u, J = det F, C = F^T F::
 
 S_solid is the reduced polynomial law (`material.hyperelastic_terms`); its D1 term acts on
 the skeleton's J, so the mixture changes volume only by fluid exchange. kappa is the
-spatial permeability (m^4/(N s)), constant and isotropic.
+spatial permeability (m^4/(N s)), constant and isotropic. With g1 or k1 > 0 the skeleton is
+quasi-linear viscoelastic as in `indentation.Indentation` (Prony terms on its isochoric and
+volumetric stress; the pore pressure is not relaxed).
 
 Weak form at t_{n+1} (step dt, J_n = J at t_n), for all du and dp vanishing where u and p
 are prescribed::
@@ -64,7 +66,7 @@ import numpy as np
 
 from .assembly import ReducedAssembler
 from .indentation import Evaluation
-from .material import _det, element_stiffness, hyperelastic_terms
+from .material import QLVState, _det, element_stiffness, hyperelastic_terms, qlv_commit, qlv_relaxed_stress
 from .space import Space
 
 __all__ = ["Biphasic", "BiphasicState", "BiphasicEvaluation", "DRAINED_DEFAULT", "febio8_space"]
@@ -77,11 +79,17 @@ _VTK_EDGES = np.array([[0, 1], [1, 2], [2, 0], [0, 3], [1, 3], [2, 3]])
 
 @dataclass
 class BiphasicState:
-    """J at every quadrature point at the end of the last converged step."""
+    """J at every quadrature point at the end of the last converged step, and, for a
+    quasi-linear viscoelastic skeleton, the Prony history of `material.QLVState`."""
     J_n: np.ndarray
+    H_iso: np.ndarray = None
+    H_vol: np.ndarray = None
+    S0_iso: np.ndarray = None
+    S0_vol: np.ndarray = None
 
     def copy(self):
-        return BiphasicState(self.J_n.copy())
+        return BiphasicState(*(None if v is None else v.copy() for v in
+                               (self.J_n, self.H_iso, self.H_vol, self.S0_iso, self.S0_vol)))
 
 
 @dataclass
@@ -211,6 +219,11 @@ class Biphasic:
         self._C1, self._C2, self._D1 = col(params["C1"]), col(params["C2"]), col(params["D1"])
         D2 = col(params.get("D2", np.inf))
         self._D2inv = np.where(np.isinf(D2), 0.0, 1.0 / np.where(np.isinf(D2), 1.0, D2))
+        self._g1, self._tau_g1 = col(params.get("g1", 0.0)), col(params.get("tau_g1", 1.0))
+        self._k1, self._tau_k1 = col(params.get("k1", 0.0)), col(params.get("tau_k1", 1.0))
+        self.viscous = bool(np.any(self._g1 > 0) or np.any(self._k1 > 0))
+        if np.any(np.asarray(params.get("k_punch", 0.0))) or np.any(np.asarray(params.get("c_bottom", 0.0))):
+            raise ValueError("punch friction and bottom slip are not built for the biphasic model")
         self._kappa = col(params["kappa"])
         if np.any(~np.isfinite(self._kappa)) or np.any(self._kappa < 0):
             raise ValueError("kappa must be finite and >= 0")
@@ -230,7 +243,9 @@ class Biphasic:
         return new
 
     def new_state(self) -> BiphasicState:
-        return BiphasicState(np.ones(self.space.dV.shape))
+        shape = self.space.dV.shape
+        q = QLVState(shape)      # carried also when elastic: a viscous variant (sensitivity) needs it
+        return BiphasicState(np.ones(shape), q.H_iso, q.H_vol, q.S0_iso, q.S0_vol)
 
     # -- fields --------------------------------------------------------------------------
     def displacement(self, q) -> np.ndarray:
@@ -254,7 +269,12 @@ class Biphasic:
         Gp = (pe[:, None, None, :] @ self.dNpdX)[..., 0, :]                # Grad p (ne, nq, 3)
         Ci = t["Ci"]
         Jp = J * p
-        S = S_iso + S_vol - Jp[..., None, None] * Ci
+        if self.viscous:
+            S_solid, a_g, a_k = qlv_relaxed_stress(S_iso, S_vol, dt, state, self._g1, self._tau_g1,
+                                                   self._k1, self._tau_k1)
+        else:
+            S_solid, a_g, a_k = S_iso + S_vol, 1.0, 1.0
+        S = S_solid - Jp[..., None, None] * Ci
         fe_u = sp.internal_force(F @ S)
         kdt = self._kappa * dt * J * sp.dV                                 # (ne, nq)
         CiGp = (Ci @ Gp[..., None])[..., 0]
@@ -263,15 +283,17 @@ class Biphasic:
         r = self.asm.vector(np.concatenate([fe_u, fe_p], axis=1))
         K = None
         if tangent:
-            K = self.asm.matrix(self._element_tangent(F, S, t, J, p, Gp, Ci, kdt))
+            K = self.asm.matrix(self._element_tangent(F, S, t, J, p, Gp, Ci, kdt, a_g, a_k))
         return BiphasicEvaluation(r, K, S_iso, S_vol, float(J.min()), J=J, fe_p=fe_p)
 
-    def _element_tangent(self, F, S, t, J, p, Gp, Ci, kdt):
+    def _element_tangent(self, F, S, t, J, p, Gp, Ci, kdt, a_g=1.0, a_k=1.0):
         sp, s = self.space, self.s
         ne = len(F)
-        t = dict(t, c_CiCi_vol=t["c_CiCi_vol"] - J * p, c_sym_vol=t["c_sym_vol"] + 2.0 * J * p)
+        # the pressure terms ride in the volumetric slot, which element_stiffness multiplies
+        # by the bulk relaxation factor a_k (> 0): divide them by it
+        t = dict(t, c_CiCi_vol=t["c_CiCi_vol"] - J * p / a_k, c_sym_vol=t["c_sym_vol"] + 2.0 * J * p / a_k)
         Ke = np.empty((ne, 34, 34))
-        Ke[:, :30, :30] = element_stiffness(sp.dNdX, sp.dV, F, S, t, 1.0, 1.0)
+        Ke[:, :30, :30] = element_stiffness(sp.dNdX, sp.dV, F, S, t, a_g, a_k)
         Finv = Ci @ np.swapaxes(F, -1, -2)
         nq = sp.nq
         gN = (sp.dNdX @ Finv).reshape(ne, nq, 30)            # spatial gradients, (a, i) flat
@@ -296,14 +318,24 @@ class Biphasic:
         return Ke
 
     def commit(self, state: BiphasicState, ev: BiphasicEvaluation, dt) -> BiphasicState:
-        """History after a converged step: J_n <- J."""
-        return BiphasicState(ev.J.copy())
+        """History after a converged step: J_n <- J (and the Prony history)."""
+        return self._committed(state, ev.J.copy(), ev.S0_iso, ev.S0_vol, dt)
+
+    def _committed(self, state, J, S0_iso, S0_vol, dt):
+        if not self.viscous:
+            return BiphasicState(J, state.H_iso, state.H_vol, state.S0_iso, state.S0_vol)
+        h = qlv_commit(state, S0_iso, S0_vol, dt, self._g1, self._tau_g1, self._k1, self._tau_k1)
+        return BiphasicState(J, h.H_iso, h.H_vol, h.S0_iso, h.S0_vol)
 
     def state_after(self, state: BiphasicState, q, dt) -> BiphasicState:
         """The committed history of a step ending at q (`commit` without a residual
-        evaluation: J from the deformation gradient only)."""
+        evaluation: J, and the elastic stresses of a viscous skeleton, from the deformation
+        gradient only)."""
         F = self.space.deformation_gradient(self.displacement(q))
-        return BiphasicState(_det(F))
+        if not self.viscous:
+            return BiphasicState(_det(F), state.H_iso, state.H_vol, state.S0_iso, state.S0_vol)
+        S_iso, S_vol, _, J = hyperelastic_terms(F, self._C1, self._C2, self._D1, self._D2inv)
+        return self._committed(state, J, S_iso, S_vol, dt)
 
     def fix_punch(self, K):
         """Make the punch depth a prescribed unknown in K (displacement control)."""

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .assembly import ReducedAssembler
-from .material import QLVState, element_stiffness, hyperelastic_terms, relaxation_factors
+from .material import QLVState, element_stiffness, hyperelastic_terms, qlv_commit, qlv_relaxed_stress
 from .space import Space
 from .springs import FaceSpring
 
@@ -170,26 +170,13 @@ class Indentation:
         if not self.viscous:
             one = np.ones(S_iso.shape[:-2])
             return S_iso + S_vol, one, one
-        a_g, e_g, c_g = relaxation_factors(dt, self._g1, self._tau_g1)
-        a_k, e_k, c_k = relaxation_factors(dt, self._k1, self._tau_k1)
-        a_g, a_k = np.broadcast_to(a_g, S_iso.shape[:-2]), np.broadcast_to(a_k, S_iso.shape[:-2])
-        e = lambda x: np.broadcast_to(x, S_iso.shape[:-2])[..., None, None]
-        S = (e(a_g) * S_iso + e(self._g1) * (e(e_g) * st.H_iso - e(c_g) * st.S0_iso)
-             + e(a_k) * S_vol + e(self._k1) * (e(e_k) * st.H_vol - e(c_k) * st.S0_vol))
-        return S, a_g, a_k
+        return qlv_relaxed_stress(S_iso, S_vol, dt, st, self._g1, self._tau_g1, self._k1, self._tau_k1)
 
     def commit(self, state: QLVState, ev: Evaluation, dt) -> QLVState:
         """History after a converged step of length dt ending at evaluation `ev`."""
         if not self.viscous:
             return state
-        new = QLVState.__new__(QLVState)
-        _, e_g, c_g = relaxation_factors(dt, self._g1, self._tau_g1)
-        _, e_k, c_k = relaxation_factors(dt, self._k1, self._tau_k1)
-        b = lambda x: np.broadcast_to(x, ev.S0_iso.shape[:-2])[..., None, None]
-        new.H_iso = b(e_g) * state.H_iso + b(c_g) * (ev.S0_iso - state.S0_iso)
-        new.H_vol = b(e_k) * state.H_vol + b(c_k) * (ev.S0_vol - state.S0_vol)
-        new.S0_iso, new.S0_vol = ev.S0_iso, ev.S0_vol
-        return new
+        return qlv_commit(state, ev.S0_iso, ev.S0_vol, dt, self._g1, self._tau_g1, self._k1, self._tau_k1)
 
     def state_after(self, state: QLVState, q, dt) -> QLVState:
         """The committed history of a step ending at q (`commit` without assembling the

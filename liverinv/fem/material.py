@@ -208,3 +208,29 @@ class QLVState:
         new.H_iso, new.H_vol = self.H_iso.copy(), self.H_vol.copy()
         new.S0_iso, new.S0_vol = self.S0_iso.copy(), self.S0_vol.copy()
         return new
+
+
+def qlv_relaxed_stress(S_iso, S_vol, dt, st: QLVState, g1, tau_g1, k1, tau_k1):
+    """The QLV stress of a backward-Euler step dt from `st` (Prony term on the isochoric and
+    on the volumetric stress, seed paper Eqs. 10-11) and the relaxation factors a_g, a_k of
+    the instantaneous tangents."""
+    a_g, e_g, c_g = relaxation_factors(dt, g1, tau_g1)
+    a_k, e_k, c_k = relaxation_factors(dt, k1, tau_k1)
+    a_g, a_k = np.broadcast_to(a_g, S_iso.shape[:-2]), np.broadcast_to(a_k, S_iso.shape[:-2])
+    e = lambda x: np.broadcast_to(x, S_iso.shape[:-2])[..., None, None]
+    S = (e(a_g) * S_iso + e(g1) * (e(e_g) * st.H_iso - e(c_g) * st.S0_iso)
+         + e(a_k) * S_vol + e(k1) * (e(e_k) * st.H_vol - e(c_k) * st.S0_vol))
+    return S, a_g, a_k
+
+
+def qlv_commit(state: QLVState, S0_iso, S0_vol, dt, g1, tau_g1, k1, tau_k1) -> QLVState:
+    """The QLV history after a converged step dt ending at instantaneous stresses S0."""
+    new = QLVState.__new__(QLVState)
+    _, e_g, c_g = relaxation_factors(dt, g1, tau_g1)
+    _, e_k, c_k = relaxation_factors(dt, k1, tau_k1)
+    b = lambda x: np.broadcast_to(x, S0_iso.shape[:-2])[..., None, None]
+    new.H_iso = b(e_g) * state.H_iso + b(c_g) * (S0_iso - state.S0_iso)
+    new.H_vol = b(e_k) * state.H_vol + b(c_k) * (S0_vol - state.S0_vol)
+    new.S0_iso, new.S0_vol = S0_iso, S0_vol
+    return new
+

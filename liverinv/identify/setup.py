@@ -14,7 +14,7 @@ MIN_CONFIDENT_NODES = 10   # fewer confident tracked nodes give no volumetric te
 
 def objective_from_files(bundle, flow, mesh, law, fixed=None, model_mesh=None, objective="likelihood",
                          observation=None, noise_force=None, noise_depth=None, noise_tracking=None,
-                         quadrature_order=2, indenter_only=False):
+                         quadrature_order=2, indenter_only=False, inclusions=()):
     """(Objective, observation name) for one law on a bundle and its flow; UserError naming
     the file for inputs that do not fit together."""
     import xarray as xr
@@ -40,7 +40,7 @@ def objective_from_files(bundle, flow, mesh, law, fixed=None, model_mesh=None, o
                         "texture (see liverinv check); --indenter-only fits the indenter record alone")
     if indenter_only:
         fl["c_of"] = fl.c_of * 0.0
-    fm = ForwardModel(model_mesh or mesh, quadrature_order=quadrature_order)
+    fm = ForwardModel(model_mesh or mesh, quadrature_order=quadrature_order, inclusions=inclusions)
     if not model_mesh and fl.sizes.get("node") != fm.mesh.n_nodes:
         raise UserError(f"{flow} has {fl.sizes.get('node')} nodes, {mesh} {fm.mesh.n_nodes}: was it tracked on "
                         "this mesh?")
