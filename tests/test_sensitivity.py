@@ -70,7 +70,7 @@ def test_block_back_substitution(method):
     assert np.abs(A @ lin.solve(B[:, 1]) - B[:, 1]).max() < 1e-12
 
 
-@pytest.mark.parametrize("law", sorted(LAWS))
+@pytest.mark.parametrize("law", ["PE", "SR"])   # (PSR: its central differences above)
 def test_force_sensitivities_under_displacement_control(fm, law):
     """d F / d log10(theta) of a depth-driven load-unload history (the noise-aware objective
     drives the model by the measured depth and fits the force) against central differences

@@ -3,6 +3,7 @@ nothing is recommended; writes DISCOVERY.nc (one step per added effect)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from . import INCLUSIONS_HELP
@@ -68,7 +69,13 @@ def run(args) -> int:
                            model_mesh=str(args.model_mesh or args.mesh),
                            defaults="likelihood objective; multi-start (8 design points) for laws with relaxation; "
                                     "noise levels of the base fit after its balance stage for every step; "
-                                    "scans and thresholds of liverinv.diagnose.score")
+                                    "scans and thresholds of liverinv.diagnose.score (p < 0.01 after the scan's "
+                                    "Bonferroni correction and a predicted drop >= 1 % of Phi_vol); when several "
+                                    "effects pass, the best 3 are refitted for 8 solves each and the lowest Phi is "
+                                    "added (liverinv.diagnose.discover.N_TRIALS, TRIAL_EVALUATIONS); an inclusion's "
+                                    "sphere is refined on a 2.5 mm grid first; an addition that lowers Phi_vol by "
+                                    "less than 1 % is not kept",
+                           inclusions=json.dumps([i.to_json() for i in inclusions]))
     write_netcdf(ds, args.out)
     if args.figures:
         from ..diagnose.figures import plot_discovery

@@ -105,10 +105,12 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
     # a localized direction (an inclusion) lives in one or two groups, where the residual holds
     # the effect itself: the cluster-robust variance is then about the score squared (t ~ 1).
     # Its variance is instead the pooled one, sigma^2 D z'z, with the design effect D of the
-    # residual's correlation measured by the fitted directions X (spread over every group).
+    # residual's correlation within the groups measured on the fitted directions X (spread
+    # over all groups). (The heteroscedastic form D sum z_i^2 r_i^2 was tried: on the quick
+    # study's null data it gave p 7e-36 to a 3.5 mm sphere under the punch, against 1.5e-4.)
     geo = np.array([c[0].geometric for c in cols], bool)
     if geo.any():
-        V[geo] = _pooled_variance(J[:, :k], r, g_idx) * zz[geo]
+        V[geo] = _design_effect(J[:, :k], r, g_idx) * float(r @ r / r.size) * zz[geo]
     n_vol = objective.v_of.size
     rows = []
     for e in cands:
@@ -160,17 +162,16 @@ def refine_inclusion(objective, params, fitted, log_scale, phi_vol, estimate, st
     return d["rows"][0]["estimate"] or estimate
 
 
-def _pooled_variance(X, r, g_idx) -> float:
-    """sigma^2 D: the residual's variance times the design effect of its correlation within
-    the groups, measured on the fitted directions X: sum_g (X_g' r_g)^2 / sum X'X per
-    column, averaged over the columns (at least sigma^2: no correlation)."""
-    sigma2 = float(r @ r / r.size)
+def _design_effect(X, r, g_idx) -> float:
+    """The cluster-robust variance of the scores of the fitted directions X over the variance
+    they would have with independent residuals, sum_g (X_g' r_g)^2 / (sigma^2 X'X), averaged
+    over them (at least 1)."""
     if X.shape[1] == 0:
-        return sigma2
+        return 1.0
     G = np.zeros((g_idx.max() + 1, X.shape[1]))
     np.add.at(G, g_idx, X * r[:, None])
-    ratio = np.einsum("gj,gj->j", G, G) / np.einsum("ij,ij->j", X, X)
-    return float(max(sigma2, np.mean(ratio)))
+    ratio = np.einsum("gj,gj->j", G, G) / (float(r @ r / r.size) * np.einsum("ij,ij->j", X, X))
+    return float(max(1.0, np.mean(ratio)))
 
 
 def _held_already(fm) -> set:

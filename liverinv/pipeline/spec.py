@@ -14,7 +14,7 @@ from pathlib import Path
 
 import yaml
 
-from ..laws import LAWS, PARAMS, LawError, get_law
+from ..laws import LAWS, PARAMS, TERMS, LawError, get_law
 from ..study import StudyError, load_study, read_yaml
 
 __all__ = ["WorkflowStudy", "FitJob", "load_workflow_study", "SCHEMA"]
@@ -164,11 +164,20 @@ def validate_workflow_study(spec, path) -> dict:
         raise StudyError(f"{path}: {where}: {msg}")
     base = Path(path).parent
     fit = spec.get("fit", {"laws": [], "seeds": {}})
-    if "discover" in spec and spec["discover"]["law"] not in LAWS:
-        _fail(path, "discover/law", f"unknown law {spec['discover']['law']!r}; known: {', '.join(LAWS)}")
+    def known(law):
+        try:
+            get_law(law)
+        except LawError:
+            return False
+        return "inc_scale" not in get_law(law).free     # (a fitted inclusion needs its sphere: liverinv fit)
+
+    if "discover" in spec and not known(spec["discover"]["law"]):
+        _fail(path, "discover/law", f"unknown law {spec['discover']['law']!r}; known: {', '.join(LAWS)} "
+                                    f"(optionally + {' or + '.join(t for t in TERMS if t != 'inclusion')})")
     for law in fit["laws"]:
-        if law not in LAWS:
-            _fail(path, "fit/laws", f"unknown law {law!r}; known: {', '.join(LAWS)}")
+        if not known(law):
+            _fail(path, "fit/laws", f"unknown law {law!r}; known: {', '.join(LAWS)} "
+                                    f"(optionally + {' or + '.join(t for t in TERMS if t != 'inclusion')})")
     for law, values in fit.get("fixed", {}).items():
         if law not in fit["laws"]:
             _fail(path, f"fit/fixed/{law}", f"not one of the study's laws {fit['laws']}")
