@@ -6,7 +6,7 @@ import pytest
 from conftest import BENCH_ELASTIC, FINE
 from liverinv.fem.solver import NewtonOptions, solve_history
 from liverinv.fem.space import Space
-from liverinv.loading import LoadHistory, ramp_history
+from liverinv.loading import ramp_history
 
 
 def test_mesh_volume(coarse_mesh):
