@@ -11,6 +11,7 @@ SuperLU (MMD on A^T+A) factorization 126 ms, solve 3 ms.
 from __future__ import annotations
 
 import logging
+import os
 
 import numpy as np
 import scipy.sparse.linalg as sla
@@ -56,6 +57,10 @@ class SparseSolver:
             if self._ps is None or pattern != self._pattern:
                 if self._ps is None:
                     self._ps = _pardiso.PyPardisoSolver(mtype=11)
+                    # pypardiso searches the whole environment tree for libmkl_rt on every
+                    # new solver (1 s on this machine, 10 % of a coarse-mesh solve) unless
+                    # told where it is: tell it, for every later solver of this process
+                    os.environ.setdefault("PYPARDISO_MKL_RT", self._ps.libmkl._name)
                     self._ps.set_statistical_info_off()
                     # no iterative refinement: the Newton/BFGS loop corrects any small
                     # solve error, and each refinement step costs a full solve (2.5x faster)
