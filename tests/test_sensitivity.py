@@ -97,3 +97,27 @@ def test_force_sensitivities_under_displacement_control(fm, law):
         # measured on the tiny mesh: dF 1.1e-6 to 1.5e-6, du 1.2e-6 to 8.8e-6 of the largest value
         assert np.abs(h.du[:, i] - du).max() < 1e-4 * np.abs(du).max(), names[i]
         assert np.all(h.ddepth[:, i] == 0.0)
+
+
+def test_residual_change_on_a_sphere_is_the_whole_residual_difference(fm):
+    """The cheap residual change of an inclusion variant (C1, C2 scaled on a sphere's
+    elements) equals the difference of two whole residual evaluations of an elastic model,
+    and is declined for a viscous one."""
+    from liverinv.forward import Inclusion
+    P = dict(C1=200.0, C2=5000.0, D1=1.5e-3)
+    model = fm.model("elastic", P)
+    top = float(fm.mesh.points[:, 2].max())
+    inside = Inclusion((0.0, 0.0, top - 0.008), 0.005, {}).elements(fm.mesh)
+    assert 0 < inside.sum() < fm.mesh.n_elements // 4
+    scale = np.where(inside, 1.3, 1.0)
+    other = model.with_params({**P, "C1": 200.0 * scale, "C2": 5000.0 * scale})
+    hist = ramp_history(4e-3, 2e-3, frames=3)
+    states = []
+    solve_history(model, hist.time, hist.value, "displacement", record=lambda k, q, ev: states.append(q.copy()))
+    q, state = states[-1], model.new_state()     # 4 mm deep
+    whole = other.evaluate(q, 0.1, state, tangent=False).r - model.evaluate(q, 0.1, state, tangent=False).r
+    cheap = model.residual_change(other, q)
+    assert np.abs(whole).max() > 0
+    assert np.abs(cheap - whole).max() < 1e-10 * np.abs(whole).max()
+    viscous = fm.model("SR", {**P, "g1": 0.4, "tau_g1": 0.5})
+    assert viscous.residual_change(viscous.with_params({**viscous.params, "C1": 200.0 * scale}), q) is None

@@ -110,10 +110,11 @@ class Space:
             raise ValueError("some scikit-fem dofs have no node in the mesh file")
         return out
 
-    def internal_force(self, P) -> np.ndarray:
+    def internal_force(self, P, elements=None) -> np.ndarray:
         """Element internal force vectors (ne, 30) of first Piola-Kirchhoff stresses P
-        (ne, nq, 3, 3): f_ai = sum_q P_iJ dN_a/dX_J dV."""
-        f = self.dNdX @ np.swapaxes(P * self.dV[..., None, None], 2, 3)  # (ne, nq, 10, 3)
+        (ne, nq, 3, 3): f_ai = sum_q P_iJ dN_a/dX_J dV; of the `elements` only, if given."""
+        G, dV = (self.dNdX, self.dV) if elements is None else (self.dNdX[elements], self.dV[elements])
+        f = G @ np.swapaxes(P * dV[..., None, None], 2, 3)  # (ne, nq, 10, 3)
         return f.sum(axis=1).reshape(len(P), 30)
 
     def volume(self) -> float:
@@ -123,10 +124,11 @@ class Space:
         """(n_nodes, 3) nodal field -> (ne, 10, 3) element values."""
         return u[self.conn]
 
-    def deformation_gradient(self, u: np.ndarray) -> np.ndarray:
-        """F = I + Grad u at every quadrature point, (ne, nq, 3, 3)."""
-        ue = u[self.conn]  # (ne, 10, 3)
-        F = np.swapaxes(ue, 1, 2)[:, None] @ self.dNdX  # (ne, nq, 3, 3)
+    def deformation_gradient(self, u: np.ndarray, elements=None) -> np.ndarray:
+        """F = I + Grad u at every quadrature point, (ne, nq, 3, 3); of the `elements` only, if given."""
+        conn, G = (self.conn, self.dNdX) if elements is None else (self.conn[elements], self.dNdX[elements])
+        ue = u[conn]  # (ne, 10, 3)
+        F = np.swapaxes(ue, 1, 2)[:, None] @ G  # (ne, nq, 3, 3)
         F[..., 0, 0] += 1.0
         F[..., 1, 1] += 1.0
         F[..., 2, 2] += 1.0
