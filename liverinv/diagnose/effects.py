@@ -27,7 +27,7 @@ import numpy as np
 
 from ..laws import LAWS, PARAMS, TERMS, get_law
 
-__all__ = ["Effect", "CATALOG", "available_effects", "law_with", "TAU_GRID_S", "KAPPA_DRAINED"]
+__all__ = ["Effect", "Linear", "Reciprocal", "CATALOG", "available_effects", "law_with", "TAU_GRID_S", "KAPPA_DRAINED"]
 
 TAU_GRID_S = tuple(float(v) for v in np.logspace(-2, 1, 7))     # 0.01 .. 10 s, 2 per decade
 INCLUSION_OFFSETS_M = (-5e-3, 0.0, 5e-3)
@@ -39,13 +39,37 @@ KAPPA_DRAINED = 1e-3    # m^4/(N s): the poroelastic null (consolidation time ~1
 
 
 @dataclass(frozen=True)
+class Linear:
+    """The law's parameter is `scale` times the amplitude (null 0)."""
+    param: str
+    scale: float = 1.0
+
+    def __call__(self, a: float) -> float:
+        return float(a * self.scale)
+
+
+@dataclass(frozen=True)
+class Reciprocal:
+    """The law's parameter is 1 / (1/null + scale a): a compliance or a permeability whose
+    null (`null`: inf for no quartic bulk term, KAPPA_DRAINED for drained flow) is a finite
+    amplitude 0. Amplitudes at or below 0 give the null."""
+    param: str
+    scale: float = 1.0
+    null: float = np.inf
+
+    def __call__(self, a: float) -> float:
+        inv = 1.0 / self.null + a * self.scale
+        return float(1.0 / inv) if inv > 0 else float(self.null)
+
+
+@dataclass(frozen=True)
 class Effect:
     name: str
     description: str              # plain words, for the report
-    amplitude: str                # tested parameter: a PARAMS name, or "1/D2"
+    amplitude: str                # the tested amplitude, for the report ("1/D2", "inc_scale - 1")
     unit: str                     # unit of the amplitude as tested
-    scale: float = 1.0            # amplitude = scale * (parameter or 1/parameter) in SI
-    sign: float = 1.0             # physical direction of the amplitude
+    to_param: Linear | Reciprocal | None = None   # amplitude -> the law's parameter (SI)
+    sign: float = 1.0             # physical direction of the amplitude (0: both)
     scanned: dict = field(default_factory=dict)   # parameter -> grid of values (SI)
     needs: tuple = ()             # law parameters the effect adds
     available: bool = True
@@ -75,12 +99,7 @@ class Effect:
                 p[k] = np.broadcast_to(np.asarray(full[k], float), inside.shape) * np.where(inside, 1.0 + eps, 1.0)
             return p
         p.update(scan)
-        if self.amplitude == "1/D2":
-            p["D2"] = 1.0 / (eps * self.scale)
-        elif self.amplitude == "1/kappa":
-            p["kappa"] = 1.0 / (1.0 / KAPPA_DRAINED + eps * self.scale)
-        else:
-            p[self.amplitude] = eps * self.scale
+        p[self.to_param.param] = self.to_param(eps)
         return p
 
     def physical(self, theta: float) -> bool:
@@ -92,14 +111,7 @@ class Effect:
         if self.geometric:
             return {"inc_scale": float(1.0 + theta), "inclusion_center_m": [float(v) for v in scan["center_m"]],
                     "inclusion_radius_m": float(scan["radius_m"])}
-        out = dict(scan)
-        if self.amplitude == "1/D2":
-            out["D2"] = float(1.0 / (theta * self.scale)) if theta > 0 else float("inf")
-        elif self.amplitude == "1/kappa":
-            out["kappa"] = float(1.0 / (1.0 / KAPPA_DRAINED + theta * self.scale)) if theta > 0 else KAPPA_DRAINED
-        else:
-            out[self.amplitude] = float(theta * self.scale)
-        return out
+        return {**scan, self.to_param.param: self.to_param(theta)}
 
 
 def inclusion_grid(mesh) -> list[dict]:
@@ -127,19 +139,20 @@ def inclusion_grid(mesh) -> list[dict]:
 
 CATALOG = {e.name: e for e in [
     Effect("shear_relaxation", "the shear stiffness relaxes over time (QLV Prony term on the isochoric stress)",
-           "g1", "1", needs=("g1", "tau_g1"), scanned={"tau_g1": TAU_GRID_S}),
+           "g1", "1", Linear("g1"), needs=("g1", "tau_g1"), scanned={"tau_g1": TAU_GRID_S}),
     Effect("bulk_relaxation", "the bulk stiffness relaxes over time (QLV Prony term on the volumetric stress)",
-           "k1", "1", needs=("k1", "tau_k1"), scanned={"tau_k1": TAU_GRID_S}),
+           "k1", "1", Linear("k1"), needs=("k1", "tau_k1"), scanned={"tau_k1": TAU_GRID_S}),
     Effect("nonlinear_bulk", "the volume change stiffens at large compression (quartic bulk term, 1/D2)",
-           "1/D2", "kPa", scale=1e3, needs=("D2",)),
+           "1/D2", "kPa", Reciprocal("D2", 1e3), needs=("D2",)),
     Effect("strain_stiffening", "the shear response stiffens with strain (second reduced-polynomial term C2)",
-           "C2", "kPa", scale=1e3, needs=("C2",)),
+           "C2", "kPa", Linear("C2", 1e3), needs=("C2",)),
     Effect("punch_friction", "the punch face holds the tissue tangentially (friction: a tangential spring "
-           "on the footprint, k_punch)", "k_punch", "kPa/mm", scale=1e6, needs=("k_punch",)),
+           "on the footprint, k_punch)", "k_punch", "kPa/mm", Linear("k_punch", 1e6), needs=("k_punch",)),
     Effect("bottom_slip", "the bottom face slides (a tangential compliance of the support, c_bottom)",
-           "c_bottom", "mm/kPa", scale=1e-6, needs=("c_bottom",)),
+           "c_bottom", "mm/kPa", Linear("c_bottom", 1e-6), needs=("c_bottom",)),
     Effect("poroelastic", "fluid flows through the solid and carries part of the load (biphasic, Darcy "
-           "permeability kappa)", "1/kappa", "1e7 N s/m^4", scale=1e7, needs=("kappa",), model="biphasic"),
+           "permeability kappa)", "1/kappa", "1e7 N s/m^4", Reciprocal("kappa", 1e7, KAPPA_DRAINED),
+           needs=("kappa",), model="biphasic"),
     Effect("inclusion", "a sphere of other stiffness inside the tissue (C1 and C2 scaled by inc_scale inside)",
            "inc_scale - 1", "1", sign=0.0, needs=("inc_scale",), geometric=True),
 ]}
