@@ -73,8 +73,8 @@ def run(args) -> int:
                                     "Bonferroni correction and a predicted drop >= 1 % of Phi_vol); when several "
                                     "effects pass, the best 3 are refitted for 8 solves each and the lowest Phi is "
                                     "added (liverinv.diagnose.discover.N_TRIALS, TRIAL_EVALUATIONS); an inclusion's "
-                                    "sphere is refined on a 2.5 mm grid first; an addition that lowers Phi_vol by "
-                                    "less than 1 % is not kept",
+                                    "sphere is refined on a 2.5 mm grid first; an addition whose refit lowers Phi by "
+                                    "less than 1 % of Phi_vol is not kept",
                            inclusions=json.dumps([i.to_json() for i in inclusions]))
     write_netcdf(ds, args.out)
     if args.figures:

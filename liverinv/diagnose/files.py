@@ -75,9 +75,13 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
             phi_vol=("step", [s["phi_vol"] for s in steps], {"units": "1"}),
             phi_ind=("step", [s["phi_ind"] for s in steps], {"units": "1"}),
             predicted_drop=("step", [np.nan] + [n.get("predicted_drop_vol", np.nan) for n in nxt[:-1]],
-                            {"long_name": "drop of Phi_vol the diagnosis predicted for this step's effect (fraction)"}),
+                            {"long_name": "drop of Phi the diagnosis predicted for this step's effect, as a "
+                                          "fraction of the previous step's Phi_vol"}),
             actual_drop=("step", [np.nan] + [n.get("actual_drop_vol", np.nan) for n in nxt[:-1]],
                          {"long_name": "actual drop of Phi_vol (fraction of the previous step's)"}),
+            actual_drop_phi=("step", [np.nan] + [n.get("actual_drop_phi", np.nan) for n in nxt[:-1]],
+                             {"long_name": "actual drop of Phi as a fraction of the previous step's Phi_vol "
+                                           "(the predicted drop's measure; an addition needs 1 %)"}),
             lr_p_value=("step", [np.nan] + [n.get("p_lr", np.nan) for n in nxt[:-1]],
                         {"long_name": "nested-model likelihood-ratio test of this step against the previous"}),
             d_aic=("step", [np.nan] + [n.get("d_aic", np.nan) for n in nxt[:-1]]),
