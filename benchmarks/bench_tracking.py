@@ -108,7 +108,6 @@ def main():
     print(f"truth: {len(times)} frames, max nodal motion {np.abs(true_vox).max():.3f} voxel/frame")
     vw = VoxelWeights.build(P, C, grid)
     results = {}
-    rng = np.random.default_rng(0)
     for ci, case in enumerate(args.cases.split(",")):
         path = args.workdir / f"{case}.h5"
         if not (args.reuse and path.is_file()):

@@ -38,6 +38,7 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "sr_null": ("SR", SR, {}, "SR"),
          "sr_poro": ("PSR", dict(SR, kappa=1e-8), {}, "SR"),
          "sr_bulk": ("SBR", dict(SR, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "SR"),
+         "sr_bulk_tau3": ("SBR", dict(SR, D2=1000.0, k1=0.5, tau_k1=3.0), {}, "SR"),
          "sr_friction": ("SR", SR, {"contact": {"punch": "bonded"}}, "SR"),
          # detection limits: weaker Darcy flow (larger kappa), stronger inclusions
          "poro_k3e-8": ("PE", dict(E, kappa=3e-8), {}, "elastic"),
@@ -59,6 +60,10 @@ def mesh_file(name, out):
     if not path.exists():
         generate_indentation_mesh(path, **PRESETS[name])
     return path
+
+
+def _fmt(v):
+    return "[" + ", ".join(f"{x:.4g}" for x in v) + "]" if isinstance(v, list) else f"{v:.4g}"
 
 
 def sh(*args):
@@ -119,7 +124,7 @@ def main(argv=None):
                         f"{', '.join(str(ds.added.values[s]) for s in steps) or 'none'} | "
                         + "; ".join(f"{ds.predicted_drop.values[s]:.3g} / {ds.actual_drop.values[s]:.3g}" for s in steps)
                         + f" | {phi_vol[0]:.4g} -> {phi_vol[-1]:.4g} (truth {floor:.4g}; {removable:.0%} of the removable) | "
-                        + ", ".join(f"{k} {v:.4g}" for k, v in last.items()) + f" | {wall:.0f} |")
+                        + ", ".join(f"{k} {_fmt(v)}" for k, v in last.items()) + f" | {wall:.0f} |")
             print(rows[-1], flush=True)
     print("| case | seed | first recommended | added | predicted / actual drop per step | Phi_vol base -> last "
           "| parameters at the last step | discover s |")

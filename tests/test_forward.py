@@ -27,7 +27,6 @@ def test_patch_test_affine_field(coarse_mesh):
     u = coarse_mesh.points @ Hgrad.T
     F = space.deformation_gradient(u)
     assert np.allclose(F, np.eye(3) + Hgrad, atol=1e-12)
-    ev_state = model.new_state()
     from liverinv.fem.material import hyperelastic_split
     S_iso, S_vol, *_ = hyperelastic_split(F, model._C1, model._C2, model._D1, 0.0, tangent=False)
     P = F @ (S_iso + S_vol)

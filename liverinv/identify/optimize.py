@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import json
 import logging
-import time as _time
 from pathlib import Path
 
 import numpy as np

@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from .grid import ImageGrid
 from .speckle import Transducer, log_compress, random_scatterers, render_iq
 from .weights import VoxelWeights
 
