@@ -1,0 +1,47 @@
+"""The cost of one diagnosis in forward solves: on a discover run's data and base fit, time one
+plain solve of the fitted law and one `diagnose` (all candidates, scans included).
+
+    python benchmarks/diagnosis_cost.py --dir /work/runs/null --tag null_s1 \
+        --mesh ../shared/benchmark/cylinder_coarse.msh
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+
+def main(argv=None):
+    import xarray as xr
+
+    from liverinv.diagnose.score import diagnose
+    from liverinv.identify.noise import NoiseModel
+    from liverinv.identify.setup import objective_from_files
+    from liverinv.laws import PARAMS, get_law
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dir", type=Path, required=True, help="the directory of benchmarks/hidden_effects.py")
+    ap.add_argument("--tag", required=True, help="CASE_sSEED")
+    ap.add_argument("--mesh", required=True)
+    args = ap.parse_args(argv)
+    d = args.dir
+    ds = xr.load_dataset(d / f"{args.tag}_disc.nc", engine="h5netcdf")
+    law, params = str(ds.law.values[0]), json.loads(ds.params.values[0])
+    obj, _ = objective_from_files(d / f"{args.tag}.h5", d / f"{args.tag}_flow.nc", args.mesh, law)
+    obj = obj.with_noise(NoiseModel(**json.loads(ds.attrs["noise"])))
+    names = [k for k in params if k in get_law(law).free]
+    p = {k: params[k] for k in names}
+    t = time.perf_counter()
+    ev = obj(p)
+    t_solve = time.perf_counter() - t
+    t = time.perf_counter()
+    out = diagnose(obj, p, names, [PARAMS[n].scale == "log" for n in names], float(ev.phi_vol))
+    t_diag = time.perf_counter() - t
+    print(f"{args.tag} ({law}): plain solve {t_solve:.1f} s, diagnosis {t_diag:.1f} s = {t_diag / t_solve:.2f} "
+          f"solves ({out['n_solves']} solves with sensitivities); recommended {out['recommended']}")
+
+
+if __name__ == "__main__":
+    main()
