@@ -43,6 +43,7 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          # detection limits: weaker Darcy flow (larger kappa), stronger inclusions
          "poro_k3e-8": ("PE", dict(E, kappa=3e-8), {}, "elastic"),
          "poro_k1e-7": ("PE", dict(E, kappa=1e-7), {}, "elastic"),
+         "poro_k1e-6": ("PE", dict(E, kappa=1e-6), {}, "elastic"),
          "inclusion_x5": ("elastic", E, inclusion(5.0), "elastic"),
          "inclusion_x10": ("elastic", E, inclusion(10.0), "elastic"),
          # two effects at once
