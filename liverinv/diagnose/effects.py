@@ -9,8 +9,9 @@ Available: ``shear_relaxation``, ``bulk_relaxation``, ``nonlinear_bulk``,
 ``strain_stiffening`` (parameters of the solid law, `liverinv.laws.PARAMS`) and
 ``punch_friction``, ``bottom_slip`` (boundary terms that compose with any solid law,
 `liverinv.laws.TERMS`: the law "SR+punch_friction"), and ``poroelastic`` (Darcy flow through
-an elastic or SR skeleton: the laws PE and PSR; tested on a biphasic model at the drained
-null, kappa = `KAPPA_DRAINED`, amplitude 1/kappa), and ``inclusion`` (C1 and C2 scaled by
+an elastic or SR skeleton: the laws PE and PSR, refitted from the drained null kappa =
+`KAPPA_DRAINED`; tested with amplitude 1/kappa by its first-order force on the solid model,
+`fem.darcy.DrainedDarcy`, with no biphasic solve), and ``inclusion`` (C1 and C2 scaled by
 inc_scale in a sphere; the sphere is scanned over `inclusion_grid`, the contrast tested in
 both directions; refitted as the law "+inclusion" with the best sphere held in the model).
 
@@ -22,6 +23,7 @@ its force in the model).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -74,7 +76,8 @@ class Effect:
     needs: tuple = ()             # law parameters the effect adds
     available: bool = True
     why_not: str = ""
-    model: str = "solid"          # the model its direction is computed on: "solid" or "biphasic"
+    force: Callable | None = None  # fm -> the added term's force direction (`fem.sensitivity`), for an
+                                   # effect that no parameter variant of the solid model carries
     geometric: bool = False       # scanned over spheres of the mesh (an inclusion)
 
     def applies_to(self, law: str, fixed=()) -> bool:
@@ -88,6 +91,13 @@ class Effect:
             return [{}]
         (name, grid), = self.scanned.items()
         return [{name: float(v)} for v in grid]
+
+    def direction(self, model, full: dict, eps: float, scan: dict, fm):
+        """The sensitivity direction of the amplitude (units of `unit`) on the solid `model`:
+        its force direction, or the model with the parameters moved by `eps`."""
+        if self.force is not None:
+            return self.force(fm)
+        return model.with_params(self.variant(full, eps, scan, fm))
 
     def variant(self, full: dict, eps: float, scan: dict, fm=None) -> dict:
         """A full parameter set moved by `eps` along the amplitude (in units of `unit`)."""
@@ -137,6 +147,12 @@ def inclusion_grid(mesh) -> list[dict]:
     return out
 
 
+def _drained_darcy(fm):
+    """The first-order force of Darcy flow at the drained limit, for 1/kappa in 1e7 N s/m^4."""
+    from ..fem.darcy import DrainedDarcy
+    return DrainedDarcy(fm.space, fm.drained, scale=1e7)
+
+
 CATALOG = {e.name: e for e in [
     Effect("shear_relaxation", "the shear stiffness relaxes over time (QLV Prony term on the isochoric stress)",
            "g1", "1", Linear("g1"), needs=("g1", "tau_g1"), scanned={"tau_g1": TAU_GRID_S}),
@@ -152,7 +168,7 @@ CATALOG = {e.name: e for e in [
            "c_bottom", "mm/kPa", Linear("c_bottom", 1e-6), needs=("c_bottom",)),
     Effect("poroelastic", "fluid flows through the solid and carries part of the load (biphasic, Darcy "
            "permeability kappa)", "1/kappa", "1e7 N s/m^4", Reciprocal("kappa", 1e7, KAPPA_DRAINED),
-           needs=("kappa",), model="biphasic"),
+           needs=("kappa",), force=_drained_darcy),
     Effect("inclusion", "a sphere of other stiffness inside the tissue (C1 and C2 scaled by inc_scale inside)",
            "inc_scale - 1", "1", sign=0.0, needs=("inc_scale",), geometric=True),
 ]}

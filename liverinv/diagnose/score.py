@@ -26,7 +26,7 @@ import time as _time
 import numpy as np
 from scipy import stats
 
-from .effects import CATALOG, INCLUSION_DEPTHS_M, INCLUSION_RADII_M, KAPPA_DRAINED, available_effects
+from .effects import CATALOG, INCLUSION_DEPTHS_M, INCLUSION_RADII_M, available_effects
 
 __all__ = ["diagnose", "refine_inclusion", "ALPHA", "MIN_DROP"]
 
@@ -62,46 +62,24 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
     for name, ls in zip(fitted, log_scale):
         p = dict(full)
         p[name] = full[name] * 10 ** EPS if ls else full[name] + EPS
-        dirs.append(p)
-    solid = [e for e in cands if e.model == "solid"]
-    biphasic = [e for e in cands if e.model == "biphasic"]
+        dirs.append(model.with_params(p))
     cols = []
-    for e in solid:
+    for e in cands:
         for scan in (scans or {}).get(e.name) or e.scan_points(fm):
-            dirs.append(e.variant(full, EPS, scan, fm))
+            dirs.append(e.direction(model, full, EPS, scan, fm))
             cols.append((e, scan))
-    ev = objective.evaluate_model(dict(params), model, [model.with_params(d) for d in dirs], EPS)
+    ev = objective.evaluate_model(dict(params), model, dirs, EPS)
     if not ev.ok:
         raise ValueError(f"the forward solve at the fit's optimum failed: {ev.message}")
     r, J = ev.residual, ev.jacobian
     k = len(fitted)
-    Zraw = [J[:, k:]]
     n_solves = 1
-    if biphasic:
-        # the directions of Darcy flow: a biphasic model of the fitted skeleton at the drained
-        # null, on the fit's own quadrature (adequate when drained), with the same contact
-        from ..fem.biphasic import Biphasic
-        bfull = dict(full, kappa=KAPPA_DRAINED)
-        bmodel = Biphasic(fm.space, bfull, punch=fm.punch, support=fm.support, drained=fm.drained)
-        bdirs = []
-        for e in biphasic:
-            for scan in e.scan_points(fm):
-                bdirs.append(e.variant(bfull, EPS, scan, fm))
-                cols.append((e, scan))
-        evb = objective.evaluate_model(dict(params), bmodel, [bmodel.with_params(d) for d in bdirs], EPS)
-        if not evb.ok:
-            raise ValueError(f"the drained biphasic solve at the fit's optimum failed: {evb.message}")
-        Zraw.append(evb.jacobian)
-        n_solves += 1
-    Z = _orthogonal(J[:, :k], np.hstack(Zraw))
+    Z = _orthogonal(J[:, :k], J[:, k:])
     groups = objective.residual_groups()
     s = Z.T @ r
     zz = np.einsum("ij,ij->j", Z, Z)
-    # cluster-robust variance of each score
     _, g_idx = np.unique(groups, return_inverse=True)
-    G = np.zeros((g_idx.max() + 1, Z.shape[1]))
-    np.add.at(G, g_idx, Z * r[:, None])
-    V = np.einsum("gj,gj->j", G, G)
+    V = _cluster_variance(Z, r, g_idx)
     # a localized direction (an inclusion) lives in one or two groups, where the residual holds
     # the effect itself: the cluster-robust variance is then about the score squared (t ~ 1).
     # Its variance is instead the pooled one, sigma^2 D z'z, with the design effect D of the
@@ -162,15 +140,21 @@ def refine_inclusion(objective, params, fitted, log_scale, phi_vol, estimate, st
     return d["rows"][0]["estimate"] or estimate
 
 
+def _cluster_variance(Z, r, g_idx):
+    """The cluster-robust variance of each column's score z'r: sum over the residual groups
+    g of (z_g' r_g)^2."""
+    G = np.zeros((g_idx.max() + 1, Z.shape[1]))
+    np.add.at(G, g_idx, Z * r[:, None])
+    return np.einsum("gj,gj->j", G, G)
+
+
 def _design_effect(X, r, g_idx) -> float:
     """The cluster-robust variance of the scores of the fitted directions X over the variance
     they would have with independent residuals, sum_g (X_g' r_g)^2 / (sigma^2 X'X), averaged
     over them (at least 1)."""
     if X.shape[1] == 0:
         return 1.0
-    G = np.zeros((g_idx.max() + 1, X.shape[1]))
-    np.add.at(G, g_idx, X * r[:, None])
-    ratio = np.einsum("gj,gj->j", G, G) / (float(r @ r / r.size) * np.einsum("ij,ij->j", X, X))
+    ratio = _cluster_variance(X, r, g_idx) / (float(r @ r / r.size) * np.einsum("ij,ij->j", X, X))
     return float(max(1.0, np.mean(ratio)))
 
 

@@ -28,7 +28,10 @@ medium mesh (`benchmarks/sensitivity_cost.py`: 16.8 vs 7.2 s, 51.4 vs 21.9 s).
 
 A parameter direction is given as a copy of the model with its parameters moved by eps
 along it (`with_params`), so the same code serves any parametrization (e.g. the
-identification's log10 parameters).
+identification's log10 parameters). A direction may instead be a term the model lacks, given
+by its force: an object with ``start()`` and ``force(model, q, dt)``, -dR/dtheta of the term
+at the null at each converged step (e.g. `darcy.DrainedDarcy`); the model's own history then
+carries its effect on later steps.
 """
 
 from __future__ import annotations
@@ -61,6 +64,10 @@ def state_difference(a, b, scale):
     return _state_map(a, b, lambda x, y: (x - y) * scale)
 
 
+def _is_force(direction) -> bool:
+    return hasattr(direction, "force") and not hasattr(direction, "evaluate")
+
+
 class Sensitivity:
     """Direct-differentiation sensitivities along parameter directions (see module doc).
 
@@ -82,6 +89,9 @@ class Sensitivity:
         self.S = np.zeros((model.n_red, self.k))
         self.dstate = [None] * self.k
         self.dforce = np.zeros(self.k)
+        for var in self.variants:
+            if _is_force(var):
+                var.start()
 
     def step(self, eng, q, ev, dt, state, new_state, control):
         """Advance the sensitivities over one converged step (q, ev at its end; `state`
@@ -99,6 +109,11 @@ class Sensitivity:
         change = getattr(eng.model, "residual_change", None)   # cheap for element-local changes
         rhs = np.empty((len(ev.r), self.k))
         for i, (var, st_i) in enumerate(zip(self.variants, states)):
+            if _is_force(var):    # an added term: its force, and the history's change
+                rhs[:, i] = var.force(eng.model, q, dt)
+                if self.dstate[i] is not None:
+                    rhs[:, i] -= (eng.model.evaluate(q, dt, st_i, tangent=False).r - ev.r) / eps
+                continue
             d = change(var, q) if change is not None else None
             rhs[:, i] = -(d if d is not None else var.evaluate(q, dt, st_i, tangent=False).r - ev.r) / eps
         if control == "displacement":
@@ -108,6 +123,7 @@ class Sensitivity:
         if control == "displacement":
             self.dforce = dr_p + K_p @ self.S
         for i, (var, st_i) in enumerate(zip(self.variants, states)):
+            var = eng.model if _is_force(var) else var
             q_i = q + eps * self.S[:, i]
             if hasattr(var, "state_after"):
                 after = var.state_after(st_i, q_i, dt)
