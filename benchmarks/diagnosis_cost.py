@@ -16,9 +16,8 @@ from pathlib import Path
 def main(argv=None):
     import xarray as xr
 
+    from liverinv.diagnose.files import discovery_objective
     from liverinv.diagnose.score import diagnose
-    from liverinv.identify.noise import NoiseModel
-    from liverinv.identify.setup import objective_from_files
     from liverinv.laws import PARAMS, get_law
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -29,8 +28,7 @@ def main(argv=None):
     d = args.dir
     ds = xr.load_dataset(d / f"{args.tag}_disc.nc", engine="h5netcdf")
     law, params = str(ds.law.values[0]), json.loads(ds.params.values[0])
-    obj, _ = objective_from_files(d / f"{args.tag}.h5", d / f"{args.tag}_flow.nc", args.mesh, law)
-    obj = obj.with_noise(NoiseModel(**json.loads(ds.attrs["noise"])))
+    obj = discovery_objective(ds, bundle=d / f"{args.tag}.h5", flow=d / f"{args.tag}_flow.nc", mesh=args.mesh)
     names = [k for k in params if k in get_law(law).free]
     p = {k: params[k] for k in names}
     t = time.perf_counter()

@@ -4,7 +4,10 @@ moved-scatterer ultrasound (noise, decorrelation, paper indenter noise), tracked
 discovered from the elastic law; prints the table of cases.
 
     python benchmarks/hidden_effects.py --out results/hidden [--cases null shear bulk]
-        [--seeds 4] [--mesh tiny|coarse|FILE] [--truth-mesh tiny|fine|FILE]
+        [--seeds 4] [--mesh tiny|coarse|FILE] [--truth-mesh tiny|fine|FILE] [--frames 100]
+
+--frames N spreads N volumes over the same load/unload cycle (the frame rate follows); the
+files of a case then carry `_fN` in their names.
 """
 
 from __future__ import annotations
@@ -73,18 +76,14 @@ def sh(*args):
     return time.perf_counter() - t
 
 
-def truth_phi_vol(bundle, flow, mesh, law, params, extra, noise):
+def truth_phi_vol(ds, bundle, flow, mesh, law, params, extra):
     """Phi_vol of the truth itself (its law, contact and inclusions) on the model mesh, with
     the noise levels discover used: the floor that tracking error and discretization leave,
     which no added effect can go below."""
-    from liverinv.forward import ForwardModel
-    from liverinv.identify.noise import NoiseModel
-    from liverinv.identify.setup import objective_from_files
-    obj, _ = objective_from_files(bundle, flow, mesh, law)
-    obj = obj.with_noise(NoiseModel(**json.loads(noise)))
+    from liverinv.diagnose.files import discovery_objective
     contact = extra.get("contact", {})
-    obj.forward = ForwardModel(obj.forward.mesh, punch=contact.get("punch", "frictionless"),
-                               support=contact.get("support", "fixed"), inclusions=extra.get("inclusions", ()))
+    obj = discovery_objective(ds, law, bundle, flow, mesh, punch=contact.get("punch", "frictionless"),
+                              support=contact.get("support", "fixed"), inclusions=extra.get("inclusions", ()))
     return float(obj(params).phi_vol)
 
 
@@ -96,6 +95,7 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, nargs="+", default=[4])
     ap.add_argument("--mesh", default="tiny")
     ap.add_argument("--truth-mesh", default="tiny")
+    ap.add_argument("--frames", type=int, help="volumes over the cycle (default: the study's 31)")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     mesh, tmesh = mesh_file(args.mesh, args.out), mesh_file(args.truth_mesh, args.out)
@@ -104,9 +104,13 @@ def main(argv=None):
     for case in args.cases:
         law, params, extra, base_law = CASES[case]
         for seed in args.seeds:
-            tag = f"{case}_s{seed}"
             study = dict(base, mesh=str(tmesh), law=law, params=params, **extra)
             study["imaging"] = dict(base["imaging"], seed=seed)
+            tag = f"{case}_s{seed}"
+            if args.frames:
+                study["loading"] = dict(base["loading"], frames=args.frames)
+                study["imaging"].update(frames=args.frames, frame_rate_hz=None)   # evenly over the cycle
+                tag = f"{case}_f{args.frames}_s{seed}"
             (args.out / f"{tag}.yaml").write_text(yaml.safe_dump(study))
             b, f, d = args.out / f"{tag}.h5", args.out / f"{tag}_flow.nc", args.out / f"{tag}_disc.nc"
             if not b.exists():
@@ -118,7 +122,7 @@ def main(argv=None):
             ds = xr.load_dataset(d, engine="h5netcdf")
             last = json.loads(ds.params.values[-1])
             phi_vol = ds.phi_vol.values
-            floor = truth_phi_vol(b, f, mesh, law, params, extra, ds.attrs["noise"])
+            floor = truth_phi_vol(ds, b, f, mesh, law, params, extra)
             removable = (phi_vol[0] - phi_vol[-1]) / (phi_vol[0] - floor) if phi_vol[0] > floor else float("nan")
             steps = range(1, ds.sizes["step"])
             rows.append(f"| {case} | {seed} | {ds.recommended.values[0]} | "

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import time
 
 import numpy as np
 from scipy import stats
@@ -97,7 +98,9 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
     obj = objective(base_law, {}, None)
     law = get_law(base_law)
     start = {k: v for k, v in (start or law.defaults).items() if k in law.free}
+    t0 = time.perf_counter()
     fit, res = fit_law(obj, start, balance=obj.noise is not None, progress=progress)
+    wall_fit = time.perf_counter() - t0
     noise = fit.obj.noise
     obj = fit.obj
     steps = []
@@ -110,7 +113,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
         steps.append(dict(step=step, law=current_law, fixed=dict(fixed), added=added[-1] if added and step else "",
                           params={**params, **fixed, **_geometry(held)}, phi=rec["phi"], phi_vol=rec["phi_vol"], phi_ind=rec["phi_ind"],
                           n_free=len(fit.names), n_solves=len(fit.history), diagnosis=d,
-                          n_residuals=int(obj.n_residuals)))
+                          n_residuals=int(obj.n_residuals), wall_fit_s=wall_fit, wall_trials_s=0.0))
         if d["recommended"] == "none":
             stopped = "no candidate effect is worth its parameters (nothing recommended)"
             break
@@ -118,6 +121,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
             break
         eligible = [r for r in d["rows"] if r["effect"] in d["eligible"]][:N_TRIALS]
         trials = {}
+        t0 = time.perf_counter()
         for row in eligible:
             if row["effect"] == "inclusion":     # the sphere on a finer grid first (one solve)
                 row = dict(row, estimate=refine_inclusion(obj, params, fit.names, fit.log_scale, rec["phi_vol"],
@@ -135,6 +139,8 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
             t_fit, t_res = fit_law(t_obj, guess, design_points=0, max_evaluations=budget, progress=progress)
             if t_res["best"] is not None:
                 trials[row["effect"]] = (row, new_law, new_fixed, t_obj, t_fit, t_res)
+        steps[-1]["wall_trials_s"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
         steps[-1]["trials"] = {e: dict(phi=t[5]["best"]["phi"], phi_vol=t[5]["best"]["phi_vol"], n_solves=len(t[4].history))
                                for e, t in trials.items()}
         if not trials:
@@ -150,6 +156,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
             final = (fit.multistart(8, 1, max_evaluations=100, probe_evaluations=6) if _needs_multistart(new_law)
                      else fit.least_squares(max_evaluations=100))
             res = {"best": min([final["best"], res["best"]], key=lambda b: b["phi"])}
+        wall_fit = time.perf_counter() - t0
         prev = steps[-1]
         actual = (prev["phi_vol"] - res["best"]["phi_vol"]) / prev["phi_vol"]
         # the drop of Phi (both blocks) as a fraction of Phi_vol: the predicted drop's measure

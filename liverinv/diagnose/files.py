@@ -10,7 +10,7 @@ import xarray as xr
 
 from ..fileio import provenance
 
-__all__ = ["diagnosis_dataset", "discovery_dataset", "explain"]
+__all__ = ["diagnosis_dataset", "discovery_dataset", "discovery_objective", "explain"]
 
 
 def _fmt(v) -> str:
@@ -94,8 +94,34 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
                                  "(JSON); the lowest Phi is added at the next step"}),
             diagnosis=("step", [explain(s["diagnosis"]) for s in steps]),
             n_solves=("step", [s["n_solves"] for s in steps]),
+            wall_fit_s=("step", [s["wall_fit_s"] for s in steps],
+                        {"long_name": "wall time of this step's fit (the base fit; the winning trial's refit "
+                                      "to convergence)", "units": "s"}),
+            wall_diagnosis_s=("step", [s["diagnosis"]["wall_s"] for s in steps],
+                              {"long_name": "wall time of this step's diagnosis", "units": "s"}),
+            wall_trials_s=("step", [s["wall_trials_s"] for s in steps],
+                           {"long_name": "wall time of the trial refits after this step's diagnosis", "units": "s"}),
         ),
         coords=dict(step=np.arange(len(steps))),
     )
     ds.attrs = provenance(stopped_because=out["stopped_because"], noise=out["noise"], **attrs)
     return ds
+
+
+def discovery_objective(ds: xr.Dataset, law=None, bundle=None, flow=None, mesh=None, **forward):
+    """The objective a DISCOVERY.nc used, rebuilt from its files (attributes `bundle`, `flow`,
+    `mesh`, `model_mesh`, or the paths given) with the noise levels every step was fitted with:
+    of the base law, or of `law` (a truth's, say) with `forward` options of the ForwardModel
+    (punch, support, inclusions)."""
+    from ..forward import ForwardModel
+    from ..identify.noise import NoiseModel
+    from ..identify.setup import objective_from_files
+
+    a = ds.attrs
+    model_mesh = a.get("model_mesh") if a.get("model_mesh") not in (None, "", a["mesh"]) else None
+    obj, _ = objective_from_files(bundle or a["bundle"], flow or a["flow"], mesh or a["mesh"], law or str(ds.law.values[0]),
+                                  model_mesh=model_mesh)
+    obj = obj.with_noise(NoiseModel(**json.loads(a["noise"])))
+    if forward:
+        obj.forward = ForwardModel(obj.forward.mesh, quadrature_order=obj.forward.quadrature_order, **forward)
+    return obj
