@@ -127,6 +127,26 @@ def test_discover_adds_the_planted_effect(tiny):
 
 
 
+@pytest.mark.slow
+def test_discover_searching_on_merged_frame_pairs_adds_the_planted_effect(tiny, monkeypatch):
+    """The same Darcy-flow data searched on pairs merged 2 at a time (as a record longer than
+    SEARCH_PAIRS would be): the same effect is added and the last fit, on all frames,
+    recovers the truth."""
+    from liverinv.diagnose import discover as disc
+    monkeypatch.setattr(disc, "SEARCH_PAIRS", 4)
+    nm = NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {})
+    truth = dict(E, kappa=1e-8)
+    data = noisy_measurements(tiny.run("PE", truth, ramp_history(4e-3, 2e-3, frames=17, unload=True)), 0)
+    out = disc.discover(lambda lw, fixed, noise: Objective(tiny, lw, data, fixed=fixed, noise=noise or nm), "elastic",
+                        max_steps=2)
+    steps = out["steps"]
+    assert [s["added"] for s in steps] == ["", "poroelastic"]
+    assert steps[1]["phi_vol"] < 0.1 * steps[0]["phi_vol"]
+    for k in ("C1", "D1"):
+        assert steps[1]["params"][k] == pytest.approx(truth[k], rel=0.05)
+    assert steps[1]["params"]["kappa"] == pytest.approx(1e-8, rel=0.15)
+
+
 def test_inclusion_scales_its_elements_and_the_fitted_one_is_the_base_at_contrast_one(tiny):
     from liverinv.forward import Inclusion
     top = tiny.mesh.points[:, 2].max()

@@ -74,7 +74,10 @@ def run(args) -> int:
                                     "effects pass, the best 3 are refitted for 8 solves each and the lowest Phi is "
                                     "added (liverinv.diagnose.discover.N_TRIALS, TRIAL_EVALUATIONS); an inclusion's "
                                     "sphere is refined on a 2.5 mm grid first; an addition whose refit lowers Phi by "
-                                    "less than 1 % of Phi_vol is not kept",
+                                    "less than 1 % of Phi_vol is not kept; a record of more than 61 frames is "
+                                    "searched (multi-start, trials) on frame pairs merged pairs // 30 at a time "
+                                    "and every reported fit finished on all frames "
+                                    "(liverinv.diagnose.discover.SEARCH_PAIRS)",
                            inclusions=json.dumps([i.to_json() for i in inclusions]))
     write_netcdf(ds, args.out)
     if args.figures:

@@ -14,6 +14,13 @@ bulk relaxation hidden behind SR shows in the indenter record. On the imaged sr_
 fit's Phi_vol was already the truth's, 2959 vs 2961, while its Phi_ind was twice the truth's;
 the SBR refit lowered Phi by 2.2 % of Phi_vol and Phi_vol by 0.95 %.)
 
+A long record (more than `SEARCH_PAIRS` frame pairs) is searched on frame pairs merged m at a
+time (`Objective.every`, m = pairs // SEARCH_PAIRS): the base law's multi-start stage, the
+trial refits and the winner's multi-start run on the merged pairs, at about 1/m of the cost per
+solve; every fit that a step reports (and its diagnosis) is then finished by least squares on
+all frames from the search's optimum. Records of up to 2 SEARCH_PAIRS + 1 frames (the
+validation's 31 included) are searched on all their frames.
+
 Every step is fitted with the same noise levels (those of the base fit after its balance
 stage), so its Phi, Phi_vol and Phi_ind fall on one scale from step to step. A nested-model
 test accompanies each addition: the likelihood-ratio statistic Phi_before - Phi_after against
@@ -42,6 +49,7 @@ log = logging.getLogger(__name__)
 
 N_TRIALS = 3               # candidates refitted when several pass the score test
 TRIAL_EVALUATIONS = 8      # solves of each trial refit
+SEARCH_PAIRS = 30          # longer records are searched on merged frame pairs
 
 
 def _needs_multistart(law):
@@ -98,8 +106,17 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
     obj = objective(base_law, {}, None)
     law = get_law(base_law)
     start = {k: v for k, v in (start or law.defaults).items() if k in law.free}
+    m = max(1, obj.K // SEARCH_PAIRS)
     t0 = time.perf_counter()
-    fit, res = fit_law(obj, start, balance=obj.noise is not None, progress=progress)
+    n_search = 0
+    if m > 1:     # the multi-start search on merged pairs, then least squares on all frames
+        s_fit, s_res = fit_law(obj.every(m), start, progress=progress)
+        n_search = len(s_fit.history)
+        if s_res["best"] is not None:
+            start = _clip_start(base_law, s_res["best"]["params"])
+        fit, res = fit_law(obj, start, design_points=0, balance=obj.noise is not None, progress=progress)
+    else:
+        fit, res = fit_law(obj, start, balance=obj.noise is not None, progress=progress)
     wall_fit = time.perf_counter() - t0
     noise = fit.obj.noise
     obj = fit.obj
@@ -112,7 +129,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
         d = diagnose(obj, params, fit.names, fit.log_scale, rec["phi_vol"])
         steps.append(dict(step=step, law=current_law, fixed=dict(fixed), added=added[-1] if added and step else "",
                           params={**params, **fixed, **_geometry(held)}, phi=rec["phi"], phi_vol=rec["phi_vol"], phi_ind=rec["phi_ind"],
-                          n_free=len(fit.names), n_solves=len(fit.history), diagnosis=d,
+                          n_free=len(fit.names), n_solves=len(fit.history) + n_search, diagnosis=d,
                           n_residuals=int(obj.n_residuals), wall_fit_s=wall_fit, wall_trials_s=0.0))
         if d["recommended"] == "none":
             stopped = "no candidate effect is worth its parameters (nothing recommended)"
@@ -136,19 +153,34 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
                 more = (Inclusion(tuple(est["inclusion_center_m"]), est["inclusion_radius_m"], "fitted"),)
             t_obj = objective(new_law, new_fixed, noise, more)
             budget = TRIAL_EVALUATIONS if len(eligible) > 1 else 100
-            t_fit, t_res = fit_law(t_obj, guess, design_points=0, max_evaluations=budget, progress=progress)
+            t_fit, t_res = fit_law(t_obj.every(m), guess, design_points=0, max_evaluations=budget, progress=progress)
             if t_res["best"] is not None:
                 trials[row["effect"]] = (row, new_law, new_fixed, t_obj, t_fit, t_res)
         steps[-1]["wall_trials_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        steps[-1]["trials"] = {e: dict(phi=t[5]["best"]["phi"], phi_vol=t[5]["best"]["phi_vol"], n_solves=len(t[4].history))
-                               for e, t in trials.items()}
+        steps[-1]["trials"] = {e: dict(phi=t[5]["best"]["phi"], phi_vol=t[5]["best"]["phi_vol"], n_solves=len(t[4].history),
+                                       frame_pairs_merged=m) for e, t in trials.items()}
         if not trials:
             stopped = f"the refit with {', '.join(r['effect'] for r in eligible)} failed"
             break
         effect = min(trials, key=lambda e: trials[e][5]["best"]["phi"])
         row, new_law, new_fixed, obj, fit, res = trials[effect]
-        if len(eligible) > 1 or _needs_multistart(new_law):
+        n_search = 0
+        if m > 1:
+            # the winner's multi-start search on the merged pairs, then all frames (the trial's
+            # Phi is on the merged pairs' scale: it is not compared with the full refit's)
+            p0 = res["best"]["params"]
+            if _needs_multistart(new_law):
+                s_fit = Fit(obj.every(m), p0, progress=progress)
+                s_final = s_fit.multistart(8, 1, max_evaluations=100, probe_evaluations=6)
+                n_search = len(s_fit.history)
+                p0 = min([b for b in (s_final["best"], res["best"]) if b is not None], key=lambda b: b["phi"])["params"]
+            fit = Fit(obj, p0, progress=progress)
+            res = {"best": fit.least_squares(max_evaluations=100)["best"]}
+            if res["best"] is None:
+                stopped = f"the refit with {effect} on all frames failed"
+                break
+        elif len(eligible) > 1 or _needs_multistart(new_law):
             # the winner of the trials, to convergence; with the multi-start stage for a law with
             # relaxation (from a base fit that mimicked the effect with a relaxation time far off,
             # the local refit stays there: PSR from SR at tau_g1 1e-4 s ended at 1.5e-3, truth 0.5)

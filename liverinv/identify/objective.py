@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import logging
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -75,6 +75,25 @@ class Measurements:
         return cls(np.asarray(t_ind, float), np.asarray(depth, float), np.asarray(force, float),
                    flow.time_start.values, flow.time_end.values, flow.u_of.values, flow.c_of.values,
                    flow.X.values if "X" in flow else None)
+
+    def every(self, m: int) -> "Measurements":
+        """The frame pairs merged `m` at a time (the last block may hold fewer): the motion
+        summed and the confidence ``c = m / sum(1 / c_i)`` (0 where any pair has 0), so that
+        with the tracking noise level times sqrt(m) each merged pair carries the variance of
+        its sum, sigma^2 sum(1 / c_i); the indenter record unchanged. For a search on fewer
+        frames (`Objective.every`)."""
+        m = int(m)
+        if m < 1:
+            raise ValueError(f"merge at least 1 frame pair, not {m}")
+        if m == 1:
+            return self
+        if not np.allclose(self.t1[:-1], self.t0[1:], rtol=0, atol=1e-9):
+            raise ValueError("frame pairs can be merged only when each starts where the last ended")
+        starts = np.arange(0, len(self.t0), m)
+        ends = np.minimum(starts + m, len(self.t0))
+        inv = np.where(self.c_of > 0, 1.0 / np.where(self.c_of > 0, self.c_of, 1.0), np.inf)
+        return replace(self, t0=self.t0[starts], t1=self.t1[ends - 1], u_of=np.add.reduceat(self.u_of, starts, axis=0),
+                       c_of=m / np.add.reduceat(inv, starts, axis=0))
 
     @classmethod
     def from_run(cls, run, frames=None, confidence=1.0):
@@ -132,6 +151,7 @@ class Objective:
                  options: NewtonOptions | None = None, confidence_floor=0.1, outside_tol=2e-3,
                  observation=None, noise=None):
         self.forward, self.law, self.data = forward, law, data
+        self.observation, self.outside_tol = observation, outside_tol
         self.fixed = dict(fixed or {})
         self.options = options or NewtonOptions()
         self.confidence_floor = confidence_floor
@@ -187,6 +207,18 @@ class Objective:
         # the intuitive axial figure: accumulated tracked motion at confident nodes
         self._U_of = np.cumsum(data.u_of[..., 2], axis=0)
         self._confident = data.c_of[..., 2] >= confidence_floor
+
+    def every(self, m: int) -> "Objective":
+        """The same objective on the frame pairs merged `m` at a time (`Measurements.every`),
+        with the tracking noise level times sqrt(m): a search on a long record at the cost of
+        a short one (about 1/m per solve). Shares the forward model and the observation."""
+        if m == 1:
+            return self
+        noise = None if self.noise is None else replace(
+            self.noise, tracking_m=self.noise.tracking_m * np.sqrt(m),
+            sources={**self.noise.sources, "frames": f"frame pairs merged {m} at a time"})
+        return Objective(self.forward, self.law, self.data.every(m), self.fixed, self.options, self.confidence_floor,
+                         self.outside_tol, self.observation, noise)
 
     def with_noise(self, noise) -> "Objective":
         """The same likelihood objective with other noise levels (e.g. block weights
