@@ -171,12 +171,11 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
             # Phi is on the merged pairs' scale: it is not compared with the full refit's)
             p0 = res["best"]["params"]
             if _needs_multistart(new_law):
-                s_fit = Fit(obj.every(m), p0, progress=progress)
-                s_final = s_fit.multistart(8, 1, max_evaluations=100, probe_evaluations=6)
+                s_fit, s_final = fit_law(obj.every(m), p0, progress=progress)
                 n_search = len(s_fit.history)
                 p0 = min([b for b in (s_final["best"], res["best"]) if b is not None], key=lambda b: b["phi"])["params"]
-            fit = Fit(obj, p0, progress=progress)
-            res = {"best": fit.least_squares(max_evaluations=100)["best"]}
+            fit, final = fit_law(obj, p0, design_points=0, progress=progress)
+            res = {"best": final["best"]}
             if res["best"] is None:
                 stopped = f"the refit with {effect} on all frames failed"
                 break
@@ -184,9 +183,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
             # the winner of the trials, to convergence; with the multi-start stage for a law with
             # relaxation (from a base fit that mimicked the effect with a relaxation time far off,
             # the local refit stays there: PSR from SR at tau_g1 1e-4 s ended at 1.5e-3, truth 0.5)
-            fit = Fit(obj, res["best"]["params"], progress=progress)
-            final = (fit.multistart(8, 1, max_evaluations=100, probe_evaluations=6) if _needs_multistart(new_law)
-                     else fit.least_squares(max_evaluations=100))
+            fit, final = fit_law(obj, res["best"]["params"], progress=progress)
             res = {"best": min([final["best"], res["best"]], key=lambda b: b["phi"])}
         wall_fit = time.perf_counter() - t0
         prev = steps[-1]
