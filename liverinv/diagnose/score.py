@@ -118,6 +118,7 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
     from .splits import misfit_splits
     return dict(rows=rows, splits=misfit_splits(objective, r), recommended=ok[0]["effect"] if ok else "none",
                 eligible=[row["effect"] for row in ok], alpha=alpha, min_drop=min_drop,
+                significant=[row["effect"] for row in rows if row["p_value"] < alpha and row["physical"]],
                 residual_check=float(np.sqrt(np.mean(r ** 2))), phi=float(ev.phi), phi_vol=float(ev.phi_vol),
                 phi_ind=float(ev.phi_ind), not_tested=not_tested, n_directions=len(cols) + k, n_solves=n_solves,
                 wall_s=_time.perf_counter() - t0,
