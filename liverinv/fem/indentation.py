@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .assembly import ReducedAssembler
-from .material import QLVState, element_stiffness, hyperelastic_terms, qlv_commit, qlv_relaxed_stress
+from .material import Kinematics, QLVState, element_stiffness, hyperelastic_terms, qlv_commit, qlv_relaxed_stress
 from .space import Space
 from .springs import FaceSpring
 
@@ -146,12 +146,24 @@ class Indentation:
         """(n_nodes, 3) nodal displacement of reduced unknowns q."""
         return self.asm.expand(q).reshape(-1, 3)
 
+    def kinematics(self, q) -> Kinematics:
+        """`Kinematics` at q, remembered for the last q: the models made by `with_params` share
+        the memory (and the space), so the variants of a sensitivity step evaluated at one q
+        compute F and its invariants once."""
+        memo = self.space.__dict__.get("_kinematics_memo")   # (assembler, q, kinematics)
+        if memo is not None and memo[0] is self.asm and memo[1].shape == np.shape(q) and np.array_equal(memo[1], q):
+            return memo[2]
+        kin = Kinematics(self.space.deformation_gradient(self.displacement(q)))
+        self.space._kinematics_memo = (self.asm, np.array(q, dtype=float, copy=True), kin)
+        return kin
+
     # -- residual and tangent ------------------------------------------------------------
     def evaluate(self, q, dt, state: QLVState, tangent=True) -> Evaluation:
         """Reduced internal force and tangent at q, for a step of length dt from `state`."""
         sp = self.space
-        F = sp.deformation_gradient(self.displacement(q))
-        S_iso, S_vol, terms, J = hyperelastic_terms(F, self._C1, self._C2, self._D1, self._D2inv)
+        kin = self.kinematics(q)
+        F = kin.F
+        S_iso, S_vol, terms, J = hyperelastic_terms(kin, self._C1, self._C2, self._D1, self._D2inv)
         S, a_g, a_k = self._relaxed_stress(S_iso, S_vol, dt, state)
         r = self.asm.vector(sp.internal_force(F @ S))
         springs = [(f, k) for f, k in ((self.punch_spring, self.k_punch), (self.bottom_spring, self.k_bottom))
@@ -210,8 +222,7 @@ class Indentation:
         residual: only the elastic stresses at q are needed)."""
         if not self.viscous:
             return state
-        F = self.space.deformation_gradient(self.displacement(q))
-        S_iso, S_vol, _, J = hyperelastic_terms(F, self._C1, self._C2, self._D1, self._D2inv)
+        S_iso, S_vol, _, J = hyperelastic_terms(self.kinematics(q), self._C1, self._C2, self._D1, self._D2inv)
         return self.commit(state, Evaluation(None, None, S_iso, S_vol, float(J.min())), dt)
 
     def fix_punch(self, K):

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["hyperelastic_split", "hyperelastic_terms", "element_stiffness", "full_tangents",
+__all__ = ["Kinematics", "hyperelastic_split", "hyperelastic_terms", "element_stiffness", "full_tangents",
            "first_elasticity", "relaxation_factors", "QLVState"]
 
 _I = np.eye(3)
@@ -115,18 +115,31 @@ def full_tangents(t: dict):
     return CC_iso, CC_vol
 
 
+class Kinematics:
+    """The material-independent quantities of F (..., 3, 3) that the stresses need: C^-1, J,
+    I1, J^-2/3 and dI1b/dC. Computed once, they serve every parameter variant at the same
+    motion (the sensitivity step evaluates tens of them)."""
+
+    __slots__ = ("F", "Ci", "J", "I1", "Jm23", "dI1b")
+
+    def __init__(self, F):
+        C = np.swapaxes(F, -1, -2) @ F
+        self.F = F
+        self.Ci = _inv_sym(C)
+        self.J = _det(F)  # signed: an inverted point has J < 0 and gives NaN stresses
+        self.I1 = np.trace(C, axis1=-2, axis2=-1)
+        with np.errstate(invalid="ignore"):
+            self.Jm23 = self.J ** (-2.0 / 3.0)
+        self.dI1b = self.Jm23[..., None, None] * (_I - (self.I1 / 3.0)[..., None, None] * self.Ci)
+
+
 def hyperelastic_terms(F, C1, C2, D1, D2inv=0.0):
-    """Stresses and structured tangent terms (see `tangent_terms`) at F (..., 3, 3):
-    returns (S_iso, S_vol, terms, J)."""
-    C = np.swapaxes(F, -1, -2) @ F
-    Ci = _inv_sym(C)
-    J = _det(F)  # signed: an inverted point has J < 0 and gives NaN stresses
-    I1 = np.trace(C, axis1=-2, axis2=-1)
-    with np.errstate(invalid="ignore"):
-        Jm23 = J ** (-2.0 / 3.0)
+    """Stresses and structured tangent terms (see `tangent_terms`) at F (..., 3, 3), or at
+    its `Kinematics`: returns (S_iso, S_vol, terms, J)."""
+    k = F if isinstance(F, Kinematics) else Kinematics(F)
+    Ci, J, I1, Jm23, dI1b = k.Ci, k.J, k.I1, k.Jm23, k.dI1b
     I1b = Jm23 * I1
     Wp = C1 + 2.0 * C2 * (I1b - 3.0)
-    dI1b = Jm23[..., None, None] * (_I - (I1 / 3.0)[..., None, None] * Ci)
     S_iso = 2.0 * Wp[..., None, None] * dI1b
     Jm1 = J - 1.0
     p = 2.0 / D1 * Jm1 + 4.0 * D2inv * Jm1**3
