@@ -103,6 +103,9 @@ def test_planted_poroelastic_flow_is_significant(tiny):
     assert row["p_value"] < 1e-6 and row["predicted_drop"] > 0.1 and "poroelastic" in d["eligible"]
     assert 1e-9 < row["estimate"]["kappa"] < 1e-6
     assert d["n_solves"] == 1
+    # the significant candidates are those with p below the level and a physical sign
+    assert d["significant"] == [r["effect"] for r in d["rows"] if r["p_value"] < d["alpha"] and r["physical"]]
+    assert set(d["eligible"]) <= set(d["significant"])
 
 
 @pytest.mark.slow
@@ -183,3 +186,18 @@ def test_planted_inclusion_is_found_where_it_is(tiny):
     assert row["effect"] == "inclusion" and row["estimate"]["inc_scale"] > 1.3
     c = np.array(row["estimate"]["inclusion_center_m"])
     assert np.linalg.norm(c - inc["center_m"]) < 0.004
+
+
+def test_trial_rows_take_the_recommended_then_the_other_significant_candidates_once_each():
+    """Discover refits the recommended candidates, then those significant below the drop
+    threshold (100-frame PSR data: Darcy flow at 0.3 %, p 2e-7 behind a recommended bulk
+    relaxation), one row per effect (its first, best scan point), at most N_TRIALS."""
+    from liverinv.diagnose.discover import N_TRIALS, trial_rows
+
+    rows = [dict(effect="bulk_relaxation", tag=0), dict(effect="inclusion", tag=1),
+            dict(effect="poroelastic", tag=2), dict(effect="inclusion", tag=3),
+            dict(effect="bottom_slip", tag=4), dict(effect="nonlinear_bulk", tag=5)]
+    d = dict(rows=rows, eligible=["bulk_relaxation"], significant=["bulk_relaxation", "inclusion", "poroelastic", "inclusion"])
+    assert [r["tag"] for r in trial_rows(d)] == [0, 1, 2][:N_TRIALS]
+    assert [r["tag"] for r in trial_rows(dict(d, eligible=["poroelastic"]), n=2)] == [2, 0]
+    assert trial_rows(dict(d, eligible=[], significant=[])) == []

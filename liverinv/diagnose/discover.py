@@ -48,7 +48,7 @@ from ..laws import PARAMS, get_law
 from .effects import law_with
 from .score import MIN_DROP, diagnose, refine_inclusion
 
-__all__ = ["discover", "fit_law"]
+__all__ = ["discover", "fit_law", "trial_rows"]
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +59,16 @@ SEARCH_PAIRS = 30          # longer records are searched on merged frame pairs
 
 def _needs_multistart(law):
     return bool({"g1", "k1"} & set(get_law(law).free))
+
+
+def trial_rows(diagnosis, n=N_TRIALS) -> list:
+    """The diagnosis rows to refit: the recommended candidates, then the other significant ones
+    (the fit may have absorbed most of an effect's first-order change, see the module doc), one
+    row per effect (its best scan point), at most n."""
+    best_row = {}
+    for r in diagnosis["rows"]:
+        best_row.setdefault(r["effect"], r)
+    return [best_row[e] for e in dict.fromkeys(diagnosis["eligible"] + diagnosis["significant"])][:n]
 
 
 def fit_law(objective, start, design_points=None, max_evaluations=100, balance=False, progress=None):
@@ -141,12 +151,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
             break
         if step == max_steps:
             break
-        # the recommended candidates, then the other significant ones (the fit may have absorbed
-        # most of an effect's first-order change, see the module doc), best N_TRIALS
-        best_row = {}
-        for r in d["rows"]:
-            best_row.setdefault(r["effect"], r)
-        eligible = [best_row[e] for e in dict.fromkeys(d["eligible"] + d["significant"])][:N_TRIALS]
+        eligible = trial_rows(d)
         trials = {}
         t0 = time.perf_counter()
         for row in eligible:
