@@ -155,8 +155,9 @@ def _tangent_predictor(eng, q0, target, dt, state):
     return q0 + eng.solve(rhs)
 
 
-def _step(eng, q, dt, state, control, target):
-    """Equilibrium at the end of one step from the initial guess q."""
+def _step(eng, q, dt, state, control, target, predict=False):
+    """Equilibrium at the end of one step from the initial guess q (with `predict`, under
+    displacement control, from the tangent predictor at q instead)."""
     model, opts = eng.model, eng.opts
     p = model.punch_index
     q0 = q.copy()
@@ -164,7 +165,7 @@ def _step(eng, q, dt, state, control, target):
     if control == "displacement":
         q[p] = target
     ev = eng.evaluate(q, dt, state, False)
-    if not _admissible(ev) and control == "displacement":
+    if control == "displacement" and (predict or not _admissible(ev)):
         q = _tangent_predictor(eng, q0, target, dt, state)
         ev = eng.evaluate(q, dt, state, False)
     if not _admissible(ev):
@@ -293,7 +294,9 @@ def solve_history(model: Indentation, times, values, control="displacement",
             err = None
             for guess in guesses:
                 try:
-                    q_new, ev, it = _step(eng, guess, dt, state, control, vb)
+                    # no extrapolation yet (the first step, or its cuts): the punch alone would
+                    # move, so start from the tangent's response instead
+                    q_new, ev, it = _step(eng, guess, dt, state, control, vb, predict=len(past) < 2)
                     err = None
                     break
                 except _StepFailure as e:
