@@ -23,6 +23,9 @@ def explain(d: dict, n=3) -> str:
     for row in d["rows"][:n]:
         est = ", ".join(f"{k} = {_fmt(v)}" for k, v in row["estimate"].items())
         verdict = ("recommended" if row["effect"] == d["recommended"] else
+                   "also passes the test (discover refits it as a trial)" if row["effect"] in d["eligible"] else
+                   "significant below the drop threshold (discover refits it as a trial when an effect is "
+                   "recommended)" if row["effect"] in d.get("significant", ()) else
                    "not recommended: " + ("its one-step estimate has the wrong sign" if not row["physical"] else
                                           f"p = {row['p_value']:.2g} >= {d['alpha']}" if row["p_value"] >= d["alpha"]
                                           else f"predicted drop {100 * row['predicted_drop']:.1f} % < "
