@@ -164,8 +164,9 @@ def _step(eng, q, dt, state, control, target, predict=False):
     q = q.copy()
     if control == "displacement":
         q[p] = target
-    ev = eng.evaluate(q, dt, state, False)
-    if control == "displacement" and (predict or not _admissible(ev)):
+    predict = predict and control == "displacement"
+    ev = None if predict else eng.evaluate(q, dt, state, False)
+    if predict or (control == "displacement" and not _admissible(ev)):
         q = _tangent_predictor(eng, q0, target, dt, state)
         ev = eng.evaluate(q, dt, state, False)
     if not _admissible(ev):
