@@ -192,3 +192,27 @@ def test_multistart_escapes_a_relaxation_time_below_the_frame_interval(tmp_path_
         assert out["best"]["params"][k] == pytest.approx(v, rel=2e-2), k
     assert sum(r["purpose"] == "design" for r in fit.history) == 8
     assert np.array_equal(fit.design(8), Fit(obj, dict(C1=500.0, C2=100.0, g1=0.9, tau_g1=5.0)).design(8))
+
+
+def test_long_record_is_searched_on_merged_frame_pairs_then_fitted_on_all(problem, tmp_path):
+    """The multi-start stage of a record longer than `search_pairs` runs on merged frame
+    pairs (here 6 pairs, merged 3 at a time), least squares on all frames continues from its
+    best and recovers the truth; the search's solves are reported apart and replayed from the
+    checkpoint on a rerun."""
+    from liverinv.identify.search import least_squares_fit
+    fm, meas = problem
+    obj = Objective(fm, "elastic", meas)
+    assert obj.K == 6
+    kw = dict(design_points=4, polish=1, probe_evaluations=4, search_pairs=2, checkpoint=tmp_path / "ckpt")
+    fit, out = least_squares_fit(obj, START, **kw)
+    search = out["search"]
+    assert search["frame_pairs_merged"] == 3 and search["n_solves"] >= 4 + 2
+    assert search["phi"] < 1e-6 * obj.every(3)(START).phi
+    for k, v in TRUTH.items():
+        assert out["params"][k] == pytest.approx(v, rel=1e-3), k
+    assert not any(r["purpose"] == "design" for r in fit.history)   # those ran on the merged pairs
+    fit2, out2 = least_squares_fit(obj, START, **kw)
+    assert all(r["replayed"] for r in fit2.history) and out2["search"]["params"] == search["params"]
+    assert out2["params"] == out["params"]
+    with pytest.raises(ValueError, match="search_pairs"):
+        least_squares_fit(obj, START, design_points=4, search_pairs=-1)

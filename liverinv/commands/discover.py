@@ -77,7 +77,7 @@ def run(args) -> int:
                                     "less than 1 % of Phi_vol is not kept; a record of more than 61 frames is "
                                     "searched (multi-start, trials) on frame pairs merged pairs // 30 at a time "
                                     "and every reported fit finished on all frames "
-                                    "(liverinv.diagnose.discover.SEARCH_PAIRS)",
+                                    "(liverinv.identify.search.SEARCH_PAIRS)",
                            inclusions=json.dumps([i.to_json() for i in inclusions]))
     write_netcdf(ds, args.out)
     if args.figures:

@@ -58,6 +58,10 @@ def register(sub):
     p.add_argument("--polish", type=int, default=2, help="design points polished by least squares")
     p.add_argument("--probe-evaluations", type=int, default=10,
                    help="residual evaluations of each least-squares run before the best is continued")
+    p.add_argument("--search-pairs", type=int, default=None, metavar="N",
+                   help="with --design-points, a record of more than N frame pairs (default 30) is "
+                        "searched on pairs merged pairs // N at a time (about 1/m of the cost per solve), then "
+                        "fitted on all frames from the search's best; 0: search on all frames")
     p.add_argument("--jacobian", choices=["sensitivity", "fd"], default="sensitivity",
                    help="least squares: the Jacobian from the forward solve's parameter sensitivities "
                         "(one solve per evaluation; default) or forward differences (1 + n solves)")
@@ -207,18 +211,11 @@ def _optimize(args, obj, start, progress, binding):
         result = fit.nelder_mead(max_evaluations=args.max_evaluations or 400)
         jac = None
     else:
-        from ..identify.balance import balanced_fit
-        n_max = args.max_evaluations or 100
-
-        def run_least_squares(fit, x0):
-            if x0 is not None:      # the balanced stage, from the first optimum
-                return fit.least_squares(max_evaluations=n_max, x0=x0, jacobian=args.jacobian)
-            if args.design_points > 0:
-                return fit.multistart(args.design_points, args.polish, max_evaluations=n_max,
-                                      probe_evaluations=args.probe_evaluations, jacobian=args.jacobian)
-            return fit.least_squares(max_evaluations=n_max, jacobian=args.jacobian)
-
-        fit, result = balanced_fit(obj, start, run_least_squares, checkpoint=args.checkpoint, progress=progress,
-                                   binding=binding)
+        from ..identify.search import least_squares_fit
+        fit, result = least_squares_fit(obj, start, design_points=args.design_points, polish=args.polish,
+                                        max_evaluations=args.max_evaluations or 100,
+                                        probe_evaluations=args.probe_evaluations, jacobian=args.jacobian,
+                                        search_pairs=args.search_pairs, checkpoint=args.checkpoint,
+                                        progress=progress, binding=binding)
         jac = result.get("jacobian")
     return fit, result, jac

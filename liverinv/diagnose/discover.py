@@ -44,6 +44,7 @@ from scipy import stats
 from ..identify.balance import balanced_fit
 from ..forward import Inclusion
 from ..identify.optimize import Fit
+from ..identify.search import SEARCH_PAIRS, merge_factor
 from ..laws import PARAMS, get_law
 from .effects import law_with
 from .score import MIN_DROP, diagnose, refine_inclusion
@@ -54,7 +55,6 @@ log = logging.getLogger(__name__)
 
 N_TRIALS = 3               # candidates refitted when several pass the score test
 TRIAL_EVALUATIONS = 8      # solves of each trial refit
-SEARCH_PAIRS = 30          # longer records are searched on merged frame pairs
 
 
 def _needs_multistart(law):
@@ -121,7 +121,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
     obj = objective(base_law, {}, None)
     law = get_law(base_law)
     start = {k: v for k, v in (start or law.defaults).items() if k in law.free}
-    m = max(1, obj.K // SEARCH_PAIRS)
+    m = merge_factor(obj, SEARCH_PAIRS)
     t0 = time.perf_counter()
     n_search = 0
     if m > 1:     # the multi-start search on merged pairs, then least squares on all frames

@@ -92,6 +92,9 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
                           noise=noise.to_json() if noise is not None else "",
                           covariance=(f"cluster-robust over {unc['n_groups']} groups" if groups is not None
                                       else "Gauss-Newton, independent residuals"),
+                          search=json.dumps(result.get("search") or {}),
+                          search_solves=int((result.get("search") or {}).get("n_solves", 0)),
+                          search_solve_time_s=float((result.get("search") or {}).get("solve_time_s", 0.0)),
                           **(attrs or {}))
     ds.attrs["warnings"] = "\n".join(fit_warnings(ds))
     return ds

@@ -106,6 +106,11 @@ class Fit:
         tmp.write_text(json.dumps(binding, indent=1, sort_keys=True))
         tmp.replace(f)
 
+    def follow(self, other: "Fit"):
+        """Number this fit's next solves after those `other` (a stage sharing the checkpoint,
+        run since this fit was made) wrote, so that no record or residual file is overwritten."""
+        self._n_records = max(self._n_records, other._n_records)
+
     # -- parameter maps ------------------------------------------------------------------
     def to_x(self, p):
         p = np.asarray(p, float)

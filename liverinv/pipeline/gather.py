@@ -68,8 +68,10 @@ def gather_fits(study: WorkflowStudy, paths: dict[FitJob, Path]) -> xr.Dataset:
         for key in ("phi", "phi_vol", "phi_ind"):
             scalars[key + "_common"][i, j, k] = float(ds[key + "_common"] if key + "_common" in ds else ds[key])
         n = int(ds.attrs["n_solves"])
-        scalars["n_solves"][i, j, k] = n
-        scalars["solve_time_s"][i, j, k] = float(ds.history_wall_s.values.sum())
+        # a search on merged frame pairs (identify.search) is part of the fit's cost
+        scalars["n_solves"][i, j, k] = n + int(ds.attrs.get("search_solves", 0))
+        scalars["solve_time_s"][i, j, k] = (float(ds.history_wall_s.values.sum())
+                                            + float(ds.attrs.get("search_solve_time_s", 0.0)))
         scalars["cond"][i, j, k] = float(ds.attrs.get("cond", np.nan))
         message[i, j, k] = str(ds.attrs.get("message", ""))
         f = fit_flags(ds)
