@@ -34,6 +34,8 @@ def inclusion(contrast, radius_m=0.005):
 # case -> (truth law, truth parameters, other keys of the truth study, base law of discover)
 CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic"),
          "bulk": ("BR", dict(E, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "elastic"),
+         # quartic bulk term: +20 % force at 6 mm on the coarse mesh
+         "nlbulk": ("elastic_D2", dict(E, D2=3e-4), {}, "elastic"),
          "friction": ("elastic", E, {"contact": {"punch": "bonded"}}, "elastic"),
          "slip": ("elastic", E, {"contact": {"support": "sliding"}}, "elastic"),
          "poro": ("PE", dict(E, kappa=1e-8), {}, "elastic"),
