@@ -11,7 +11,7 @@ from pathlib import Path
 
 from .errors import UserError
 
-__all__ = ["atomic_path", "check_writable", "write_netcdf", "file_sha256", "provenance"]
+__all__ = ["atomic_path", "check_writable", "write_netcdf", "file_sha256", "data_sha256", "provenance"]
 
 
 def file_sha256(path) -> str:
@@ -20,6 +20,32 @@ def file_sha256(path) -> str:
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
+    return h.hexdigest()
+
+
+def data_sha256(path, attrs=()) -> str:
+    """Hex SHA-256 of an HDF5 file's data (netCDF-4 included): every dataset's name, dtype,
+    shape and values, in name order, and the root attributes named in `attrs`. Unlike the
+    file's bytes, it does not change with what a rerun writes differently for the same data
+    (run times, revisions, HDF5 layout). A file that is not HDF5: its bytes' hash."""
+    import h5py
+    import numpy as np
+
+    try:
+        f = h5py.File(path, "r")
+    except OSError:
+        return file_sha256(path)
+    h = hashlib.sha256()
+    with f:
+        names = []
+        f.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
+        for name in sorted(names):
+            d = f[name]
+            h.update(f"{name}|{d.dtype.str}|{d.shape}|".encode())
+            v = np.asarray(d[()])
+            h.update(repr(v.tolist()).encode() if v.dtype.kind == "O" else np.ascontiguousarray(v).tobytes())
+        for key in attrs:
+            h.update(f"@{key}={f.attrs.get(key, '')!r}|".encode())
     return h.hexdigest()
 
 

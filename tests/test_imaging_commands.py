@@ -183,6 +183,16 @@ def test_fits_refuse_stale_checkpoints_drop_torn_lines_and_never_crash(tmp_path,
     a = p.parse_args(base + ["--flow", str(flow), "--out", str(out)])
     assert a.func(a) == 0
     first = xr.load_dataset(out)
+    n_logged = len((ck / "evaluations.jsonl").read_text().splitlines())
+    # the same motion tracked again (other run times in the file): the logged solves hold
+    again_flow = tmp_path / "f2.nc"
+    a = p.parse_args(["track", str(bundle), "--mesh", str(MESH), "--out", str(again_flow)])
+    assert a.func(a) == 0
+    assert xr.load_dataset(again_flow).attrs["cpu_seconds"] != xr.load_dataset(flow).attrs["cpu_seconds"]
+    a = p.parse_args(base + ["--flow", str(again_flow), "--out", str(tmp_path / "again.nc")])
+    assert a.func(a) == 0
+    assert len((ck / "evaluations.jsonl").read_text().splitlines()) == n_logged
+    assert float(xr.load_dataset(tmp_path / "again.nc").phi) == float(first.phi)
     # another flow with the same checkpoint: refused, nothing written
     f = xr.load_dataset(flow)
     f["u_of"] = f.u_of * 1.01

@@ -113,8 +113,11 @@ def _write_failed(args, msg, history=None):
 
 def _binding(args, law, fixed, noise, flow_path):
     """What the checkpoint's solves depend on: the data and meshes (hashes), law and options."""
-    from ..fileio import file_sha256
-    return dict(bundle=file_sha256(args.bundle), flow=file_sha256(flow_path), mesh=file_sha256(args.mesh),
+    from ..fileio import data_sha256, file_sha256
+    # the data's content, not the files' bytes: a rerun that tracks the same motion again
+    # writes other run times into the flow file, and its logged solves still hold
+    return dict(bundle=data_sha256(args.bundle), flow=data_sha256(flow_path, attrs=("options", "stride", "window")),
+                mesh=file_sha256(args.mesh),
                 model_mesh=file_sha256(args.model_mesh) if args.model_mesh else "",
                 law=law, fixed=fixed, objective=args.objective, observation=args.observation,
                 quadrature_order=args.quadrature_order, noise=noise.to_json() if noise is not None else "",

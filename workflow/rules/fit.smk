@@ -21,7 +21,7 @@ rule fit:
         runtime=240,
     shell:
         "liverinv fit --bundle {input.bundle} --flow {input.flow} --mesh {input.mesh} {params.options} "
-        "--checkpoint {params.checkpoint} --keep-going --out {output} > {log} 2>&1"
+        "--checkpoint {params.checkpoint} --fresh-checkpoint --keep-going --out {output} > {log} 2>&1"
 
 
 rule gather:
