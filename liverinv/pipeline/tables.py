@@ -1,6 +1,8 @@
 """A study's tables from its gathered fits (`fits.nc`), in the paper's layout: recovered value
 with the start in parentheses, the error against the truth where known, Phi, Phi_ind, Phi_vol,
-and a status column that keeps a flagged or failed fit from passing as a clean number."""
+and a status column that keeps a flagged or failed fit from passing as a clean number. The
+tables hold only what the data and the code determine, so a rerun reproduces them digit for
+digit; the solve times are in `fits.nc` (`solve_time_s`) and the workflow's benchmark files."""
 
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ def fit_table(ds: xr.Dataset) -> pd.DataFrame:
                     row[f"{p}_start"] = float(f.start.sel(param=p))
                     row[f"{p}_rel_sd"] = float(f.rel_sd.sel(param=p))
                     row[f"{p}_error"] = b / t - 1 if np.isfinite(t) and t != 0 else np.nan
-                for k in ("phi", "phi_ind", "phi_vol", "phi_common", "phi_ind_common", "phi_vol_common", "rms_depth", "rms_axial", "rms_force", "n_solves", "solve_time_s"):
+                for k in ("phi", "phi_ind", "phi_vol", "phi_common", "phi_ind_common", "phi_vol_common", "rms_depth", "rms_axial", "rms_force", "n_solves"):
                     row[k] = float(f[k])
                 rows.append(row)
     return pd.DataFrame(rows)
@@ -56,7 +58,7 @@ def markdown_table(ds: xr.Dataset) -> str:
         params = _law_params(ds, law)
         sub = df[df.law == law]
         head = ["method", "seed"] + [f"{p} ({units[p]})" for p in params] + ["Phi", "Phi_ind", "Phi_vol", "solves",
-                                                                              "solve time (s)", "status"]
+                                                                              "status"]
         out += [f"\n## {law}\n", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         notes = []
         for _, r in sub.iterrows():
@@ -66,7 +68,7 @@ def markdown_table(ds: xr.Dataset) -> str:
                 if np.isfinite(r[p + "_error"]):
                     c += f" {100 * r[p + '_error']:+.1f} %"
                 cells.append(c)
-            cells += [_g(r.phi), _g(r.phi_ind), _g(r.phi_vol), _g(r.n_solves, ".0f"), _g(r.solve_time_s, ".0f"),
+            cells += [_g(r.phi), _g(r.phi_ind), _g(r.phi_vol), _g(r.n_solves, ".0f"),
                       f"**{r.status}**" if r.status != "ok" else "ok"]
             out.append("| " + " | ".join(str(c) for c in cells) + " |")
             if r.status == "flagged":
