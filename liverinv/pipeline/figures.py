@@ -46,7 +46,9 @@ def best_fits(fits: xr.Dataset) -> dict:
 
 def plot_convergence(fits: xr.Dataset, law: str, out):
     """Phi and every parameter against forward solves, one line per seed (solid: least
-    squares, dashed: Nelder-Mead), the truth dotted where known."""
+    squares, dashed: Nelder-Mead), the truth dotted where known. A fit whose multi-start stage
+    ran on merged frame pairs (`search_solves`) is drawn from the solve after that search (its
+    Phi is on another scale)."""
     plt = _plt()
     f = fits.sel(law=law)
     params = [str(p) for p in fits.param.values if np.isfinite(f.start.sel(param=p).values).any()]
@@ -57,6 +59,7 @@ def plot_convergence(fits: xr.Dataset, law: str, out):
     axes = axes.ravel()
     styles = {"least-squares": "-", "nelder-mead": "--"}
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    searched = 0
     for j, seed in enumerate(fits.seed.values):
         for method in fits.method.values:
             g = f.sel({"seed": seed, "method": method})
@@ -64,7 +67,9 @@ def plot_convergence(fits: xr.Dataset, law: str, out):
             ok = np.isfinite(phi)
             if not ok.any():
                 continue
-            x = np.arange(1, len(phi) + 1)[ok]
+            skip = int(g.search_solves) if "search_solves" in g and np.isfinite(g.search_solves) else 0
+            x = skip + np.arange(1, len(phi) + 1)[ok]
+            searched = max(searched, skip)
             kw = dict(color=colors[j % len(colors)], ls=styles.get(str(method), "-"), lw=1.2,
                       label=f"seed {seed} {method}")
             axes[0].plot(x, np.minimum.accumulate(phi[ok]), **kw)
@@ -73,6 +78,9 @@ def plot_convergence(fits: xr.Dataset, law: str, out):
     axes[0].set(yscale="log", xlabel="forward solves", ylabel=f"best Phi ({fits.phi.attrs.get('units', '')})",
                 title=f"{law}: misfit")
     axes[0].legend(fontsize=7)
+    if searched:
+        axes[0].set_xlabel(f"forward solves (the first {searched}: multi-start on merged frame pairs, not drawn)",
+                           fontsize=8)
     for a, p in zip(axes[1:], params):
         unit = str(fits.param_unit.sel(param=p).values)
         t = float(fits.truth.sel(param=p))

@@ -43,7 +43,7 @@ def gather_fits(study: WorkflowStudy, paths: dict[FitJob, Path]) -> xr.Dataset:
     at_bound = np.zeros(best.shape, bool)
     scalars = {k: np.full(shape, np.nan) for k in
                ("phi", "phi_vol", "phi_ind", "phi_common", "phi_vol_common", "phi_ind_common", "rms_depth",
-                "rms_axial", "rms_force", "n_solves", "solve_time_s", "cond")}
+                "rms_axial", "rms_force", "n_solves", "search_solves", "solve_time_s", "cond")}
     status = np.full(shape, "failed", dtype=object)
     flags = np.full(shape, "", dtype=object)
     message = np.full(shape, "", dtype=object)
@@ -69,7 +69,8 @@ def gather_fits(study: WorkflowStudy, paths: dict[FitJob, Path]) -> xr.Dataset:
             scalars[key + "_common"][i, j, k] = float(ds[key + "_common"] if key + "_common" in ds else ds[key])
         n = int(ds.attrs["n_solves"])
         # a search on merged frame pairs (identify.search) is part of the fit's cost
-        scalars["n_solves"][i, j, k] = n + int(ds.attrs.get("search_solves", 0))
+        scalars["search_solves"][i, j, k] = int(ds.attrs.get("search_solves", 0))
+        scalars["n_solves"][i, j, k] = n + scalars["search_solves"][i, j, k]
         scalars["solve_time_s"][i, j, k] = (float(ds.history_wall_s.values.sum())
                                             + float(ds.attrs.get("search_solve_time_s", 0.0)))
         scalars["cond"][i, j, k] = float(ds.attrs.get("cond", np.nan))
@@ -110,7 +111,7 @@ def gather_fits(study: WorkflowStudy, paths: dict[FitJob, Path]) -> xr.Dataset:
     dims = ("law", "seed", "method")
     units = {"phi": phi_units, "phi_vol": phi_units, "phi_ind": phi_units, "phi_common": phi_units,
              "phi_vol_common": phi_units, "phi_ind_common": phi_units, "rms_depth": "m", "rms_axial": "m",
-             "rms_force": "N", "n_solves": "1", "solve_time_s": "s", "cond": "1"}
+             "rms_force": "N", "n_solves": "1", "search_solves": "1", "solve_time_s": "s", "cond": "1"}
     out = xr.Dataset(
         data_vars=dict(
             best=(dims + ("param",), best, {"long_name": "identified parameter (SI)"}),
