@@ -216,3 +216,25 @@ def test_long_record_is_searched_on_merged_frame_pairs_then_fitted_on_all(proble
     assert out2["params"] == out["params"]
     with pytest.raises(ValueError, match="search_pairs"):
         least_squares_fit(obj, START, design_points=4, search_pairs=-1)
+
+
+class ScaledBasins(TwoBasins):
+    """TwoBasins with a constant residual (the optimum keeps Phi > 0) times `scale`: the
+    paper's objective is in m^2/s^2, with Phi about 1e-9 at its optimum."""
+
+    def __init__(self, scale):
+        self.scale = scale
+
+    def __call__(self, params):
+        from liverinv.identify.objective import Evaluation
+        r = self.scale * np.append(super().__call__(params).residual, 0.3)
+        return Evaluation(dict(params), True, float(r @ r), float(r @ r), 0.0, residual=r)
+
+
+def test_least_squares_stops_where_the_optimum_is_whatever_the_scale_of_phi():
+    start = dict(C1=150.0, C2=4000.0, D1=1e-3, g1=0.3, tau_g1=0.3)
+    ref = Fit(ScaledBasins(1.0), start).least_squares()
+    tiny = Fit(ScaledBasins(3e-5), start).least_squares()
+    for k, v in TwoBasins.truth.items():
+        assert ref["params"][k] == pytest.approx(v, rel=1e-5), k
+        assert tiny["params"][k] == pytest.approx(v, rel=1e-5), k
