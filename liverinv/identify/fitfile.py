@@ -47,6 +47,7 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
         a_ind = stages[1]["force_N"] / stages[0]["force_N"]
     common = {"long_name": "misfit at the first stage's noise levels: comparable between laws on the same data"}
     phi_units = "1" if noise is not None else "m^2/s^2"
+    search = result.get("search") or {}     # a multi-start stage on merged frame pairs (identify.search)
     ds = xr.Dataset(
         data_vars=dict(
             best=("param", [ev.params[k] for k in names], {"long_name": "identified parameters (SI)"}),
@@ -92,9 +93,9 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
                           noise=noise.to_json() if noise is not None else "",
                           covariance=(f"cluster-robust over {unc['n_groups']} groups" if groups is not None
                                       else "Gauss-Newton, independent residuals"),
-                          search=json.dumps(result.get("search") or {}),
-                          search_solves=int((result.get("search") or {}).get("n_solves", 0)),
-                          search_solve_time_s=float((result.get("search") or {}).get("solve_time_s", 0.0)),
+                          search=json.dumps(search),
+                          search_solves=int(search.get("n_solves", 0)),
+                          search_solve_time_s=float(search.get("solve_time_s", 0.0)),
                           **(attrs or {}))
     ds.attrs["warnings"] = "\n".join(fit_warnings(ds))
     return ds
