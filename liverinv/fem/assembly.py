@@ -54,10 +54,12 @@ class ReducedAssembler:
         self.indptr = self.indptr.astype(np.int32)
 
     def expand(self, q):
-        """Full dof vector from reduced unknowns."""
-        out = np.zeros(len(self.index))
+        """Full dof vector from reduced unknowns (n_red,), or full dof vectors (n_full, k)
+        from (n_red, k)."""
+        q = np.asarray(q)
+        out = np.zeros((len(self.index),) + q.shape[1:])
         m = self.index >= 0
-        out[m] = self.sign[m] * q[self.index[m]]
+        out[m] = (self.sign[m] if q.ndim == 1 else self.sign[m, None]) * q[self.index[m]]
         return out
 
     def vector(self, fe):

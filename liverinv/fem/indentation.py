@@ -165,11 +165,8 @@ class Indentation:
         F = kin.F
         S_iso, S_vol, terms, J = hyperelastic_terms(kin, self._C1, self._C2, self._D1, self._D2inv)
         S, a_g, a_k = self._relaxed_stress(S_iso, S_vol, dt, state)
-        r = self.asm.vector(sp.internal_force(F @ S))
-        springs = [(f, k) for f, k in ((self.punch_spring, self.k_punch), (self.bottom_spring, self.k_bottom))
-                   if f is not None and k > 0]
-        for f, k in springs:
-            r += f.force(k, q)
+        r = self.asm.vector(sp.internal_force(F @ S)) + self.spring_force(q)
+        springs = self._springs()
         K = None
         if tangent:
             Ke = element_stiffness(sp.dNdX, sp.dV, F, S, terms, a_g, a_k)
@@ -177,6 +174,22 @@ class Indentation:
             for f, k in springs:
                 f.add_tangent(K, k)
         return Evaluation(r, K, S_iso, S_vol, float(J.min()))
+
+    def _springs(self):
+        return [(f, k) for f, k in ((self.punch_spring, self.k_punch), (self.bottom_spring, self.k_bottom))
+                if f is not None and k > 0]
+
+    def spring_force(self, q) -> np.ndarray:
+        """The tangential springs' part of the reduced residual at q."""
+        r = np.zeros(self.n_red)
+        for f, k in self._springs():
+            r += f.force(k, q)
+        return r
+
+    def linearized_directions(self, variants, eps, is_force):
+        """The batched, linearized sensitivity step along `variants` (`linearized`)."""
+        from .linearized import LinearizedDirections
+        return LinearizedDirections(self, variants, eps, is_force)
 
     def residual_change(self, other: "Indentation", q) -> np.ndarray | None:
         """other's residual minus this model's at q, assembled from the elements whose

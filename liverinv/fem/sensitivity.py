@@ -76,11 +76,16 @@ class Sensitivity:
     variants : models with the parameters moved by `eps` along each direction (same mesh
         and boundary conditions as the solved model, e.g. `Biphasic.with_params`)
     eps : the step of the variants along their directions
+    linearized : use the model's batched, linearized step where it has one
+        (`Indentation.linearized_directions`, `fem.linearized`); False: the generic
+        finite differences of `evaluate` and `state_after` for every model
     """
 
-    def __init__(self, variants, eps: float):
+    def __init__(self, variants, eps: float, linearized: bool = True):
         self.variants, self.eps = list(variants), float(eps)
         self.k = len(self.variants)
+        self.linearized = linearized
+        self.batch = None      # the model's LinearizedDirections, if used
         self.S = None          # (n_red, k) current dq/dtheta
         self.dstate = None     # history-state derivatives, one per direction
         self.dforce = None     # (k,) derivative of the punch force (displacement control)
@@ -92,6 +97,10 @@ class Sensitivity:
         for var in self.variants:
             if _is_force(var):
                 var.start()
+        make = getattr(model, "linearized_directions", None) if self.linearized else None
+        self.batch = make(self.variants, self.eps, _is_force) if make is not None else None
+        if self.batch is not None:
+            self.batch.start()
 
     def step(self, eng, q, ev, dt, state, new_state, control):
         """Advance the sensitivities over one converged step (q, ev at its end; `state`
@@ -105,6 +114,14 @@ class Sensitivity:
         K_p = tangent.K[[p]].toarray().ravel() if control == "displacement" else None
         eng.refactor(q, dt, state, control, tangent)  # (it also serves the next step's iterations)
         eng.pairs, eng.fresh = [], False
+        if self.batch is not None:
+            rhs = self.batch.rhs(q, dt, state, ev)
+            for i, var in enumerate(self.variants):
+                if _is_force(var):
+                    rhs[:, i] += var.force(eng.model, q, dt)
+            self._solve(eng, rhs, control, K_p)
+            self.batch.commit(q, dt, state, self.S)
+            return
         states = [state_axpy(state, self.dstate[i], eps) for i in range(self.k)]
         change = getattr(eng.model, "residual_change", None)   # cheap for element-local changes
         rhs = np.empty((len(ev.r), self.k))
@@ -116,12 +133,7 @@ class Sensitivity:
                 continue
             d = change(var, q) if change is not None else None
             rhs[:, i] = -(d if d is not None else var.evaluate(q, dt, st_i, tangent=False).r - ev.r) / eps
-        if control == "displacement":
-            dr_p = -rhs[p].copy()
-            rhs[p] = 0.0
-        self.S = eng.solve(rhs)                      # one block back-substitution
-        if control == "displacement":
-            self.dforce = dr_p + K_p @ self.S
+        self._solve(eng, rhs, control, K_p)
         for i, (var, st_i) in enumerate(zip(self.variants, states)):
             var = eng.model if _is_force(var) else var
             q_i = q + eps * self.S[:, i]
@@ -131,3 +143,14 @@ class Sensitivity:
                 after = var.commit(st_i, var.evaluate(q_i, dt, st_i, tangent=False), dt)
             # an elastic model keeps its (empty) history: nothing to differentiate
             self.dstate[i] = None if after is new_state else state_difference(after, new_state, 1.0 / eps)
+
+    def _solve(self, eng, rhs, control, K_p):
+        """S from the right-hand sides (one block back-substitution); under displacement
+        control the punch row is the force's derivative instead."""
+        p = eng.model.punch_index
+        if control == "displacement":
+            dr_p = -rhs[p].copy()
+            rhs[p] = 0.0
+        self.S = eng.solve(rhs)
+        if control == "displacement":
+            self.dforce = dr_p + K_p @ self.S

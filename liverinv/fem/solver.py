@@ -324,7 +324,8 @@ def solve_history(model: Indentation, times, values, control="displacement",
         u[k] = model.displacement(q)
         depth[k], force[k] = q[p], last.r[p]
         if sensitivity is not None:
-            du[k] = [model.displacement(sensitivity.S[:, i]) for i in range(sensitivity.k)]
+            n_u = 3 * model.space.mesh.n_nodes    # (a biphasic model's pressures follow)
+            du[k] = model.asm.expand(sensitivity.S)[:n_u].T.reshape(sensitivity.k, -1, 3)
             ddepth[k] = sensitivity.S[p]
             dforce[k] = sensitivity.dforce if control == "displacement" else 0.0
         if record is not None:
