@@ -291,13 +291,20 @@ class Objective:
         return u if self.to_data is None else self.to_data(u)
 
     def model_motion(self, t, u):
-        """Frame-pair nodal velocities (K, N, 3) of a model history u(t)."""
-        def at(tq):
+        """Frame-pair nodal velocities (K, ..., N, 3) of a model history u(t) (n_t, ..., N, 3)."""
+        def weights(tq):       # linear interpolation in time as a (len(tq), len(t)) matrix
             k = np.clip(np.searchsorted(t, tq) - 1, 0, len(t) - 2)
-            w = ((tq - t[k]) / (t[k + 1] - t[k]))[:, None, None]
-            return (1 - w) * u[k] + w * u[k + 1]
+            w = (tq - t[k]) / (t[k + 1] - t[k])
+            W = np.zeros((len(tq), len(t)))
+            np.add.at(W, (np.arange(len(tq)), k), 1 - w)
+            np.add.at(W, (np.arange(len(tq)), k + 1), w)
+            return W
+
+        def at(tq):
+            return (weights(tq) @ u.reshape(len(t), -1)).reshape((len(tq),) + u.shape[1:])
         d = self.data
-        return (at(d.t1) - at(d.t0)) / (d.t1 - d.t0)[:, None, None], at
+        V = (weights(d.t1) - weights(d.t0)) / (d.t1 - d.t0)[:, None]
+        return (V @ u.reshape(len(t), -1)).reshape((len(d.t1),) + u.shape[1:]), at
 
     sensitivities = True   # __call__ can give the residual's derivatives (see `directions`)
 
@@ -341,9 +348,9 @@ class Objective:
         jac = None
         if sens is not None:
             jac = np.empty((self.n_residuals, sens.k))
+            dv = self.model_motion(self.t_drive, self.at_data_nodes(h.du))[0]      # (K, k, N, 3)
+            jac[: r_vol.size] = -(self._w_vol[:, None] * dv).transpose(0, 2, 3, 1).reshape(r_vol.size, sens.k)
             for i in range(sens.k):
-                dv = self.model_motion(self.t_drive, self.at_data_nodes(h.du[:, i]))[0]
-                jac[: r_vol.size, i] = -(self._w_vol * dv).ravel()
                 jac[r_vol.size:, i] = self._indenter_residual(h.ddepth[:, i], h.dforce[:, i], derivative=True)
         return Evaluation(dict(params), True, phi_vol + phi_ind, phi_vol, phi_ind, rms_depth, rms_axial,
                           rms_force, _time.perf_counter() - t_start, "", np.concatenate([r_vol, r_ind]), v_fem,
