@@ -23,8 +23,9 @@ is linear in what changes, so here all directions are done together as array ope
 * after the solve, the instantaneous stress moves by ``dS0_i = dS0_theta_i + CC : dE_i``,
   ``dE_i = sym(F^T Grad s_i)``: one 18 x 9 matrix per quadrature point maps Grad s_i to both
   parts (`stress_operator`), applied to all directions as a batched matrix product, and the
-  branch's history derivative follows from the same linear update. The 1/eps terms are those of the generic form: a direction that opens a
-  Prony branch (g from 0) or moves its relaxation time carries the branch's own history.
+  branch's history derivative follows from the same linear update. The 1/eps terms are those
+  of the generic form: a direction that opens a Prony branch (g from 0) or moves its
+  relaxation time carries the branch's own history.
 
 Boundary directions (the tangential springs' stiffness) change the springs' force only, and
 force directions (`darcy.DrainedDarcy`) are the model itself plus a force; their history is
@@ -48,9 +49,9 @@ _VISCOUS = ("g1", "tau_g1", "k1", "tau_k1")
 
 
 def _per_element(v, ne):
+    """A parameter (a scalar or one value per element) as an (ne, 1) array."""
     v = np.asarray(v, dtype=float)
-    return np.broadcast_to(v.reshape(ne, 1) if v.ndim and v.size == ne else v.reshape(-1)[:1].reshape(1, 1),
-                           (ne, 1))
+    return np.broadcast_to(v.reshape(-1, 1) if v.size == ne else v.reshape(1, 1), (ne, 1))
 
 
 def _restricted(kin: Kinematics, elements) -> Kinematics:
