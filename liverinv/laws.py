@@ -113,6 +113,8 @@ class Law:
 
 _HYPER = dict(C1=200.0, C2=5000.0, D1=1.5e-3)
 LAWS = {law.name: law for law in [
+    Law("NH", "neo-Hookean: reduced polynomial hyperelasticity with its first term only (C2 = 0)",
+        ("C1", "D1"), fixed=dict(C2=0.0), defaults=dict(C1=200.0, D1=1.5e-3)),
     Law("elastic", "reduced polynomial hyperelasticity (Eq. 9 with D2 absent)",
         ("C1", "C2", "D1"), defaults=_HYPER),
     Law("elastic_D2", "reduced polynomial hyperelasticity with quartic bulk term (Eq. 9)",

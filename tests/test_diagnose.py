@@ -72,6 +72,63 @@ def test_planted_effect_is_found_and_null_data_stay_silent(tiny, truth_law, trut
         assert all(r["p_value"] > 0.01 or r["predicted_drop"] < 0.01 or not r["physical"] for r in d["rows"])
 
 
+@pytest.mark.parametrize("truth_law, truth, expected", [
+    ("elastic", E, "strain_stiffening"),
+    ("NH", dict(C1=600.0, D1=1.5e-3), "none"),
+])
+def test_strain_stiffening_behind_a_neo_hookean_fit(tiny, truth_law, truth, expected):
+    """The neo-Hookean law (C2 held at 0) lacks strain stiffening: the law that carries it is
+    the reduced polynomial with C2 free, which at C2 = 0 is NH exactly; a planted C2 is found
+    (one-step C2 of the right order) and neo-Hookean data stay silent."""
+    run = tiny.run(truth_law, truth, ramp_history(4e-3, 2e-3, frames=17, unload=True))
+    data = noisy_measurements(run, 0)
+    assert law_with("NH", ["strain_stiffening"]) == ("elastic", {})
+    assert law_with("NH", ["shear_relaxation"]) == ("SR", {"C2": 0.0})
+    off = dict(C1=500.0, D1=1e-3)
+    base = Objective(tiny, "NH", data)(off)
+    ext = Objective(tiny, "elastic", data)(dict(off, C2=0.0))
+    assert np.abs(ext.residual - base.residual).max() <= 1e-9 * np.abs(base.residual).max()
+    obj = Objective(tiny, "NH", data, noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
+    fit = Fit(obj, off)
+    out = fit.least_squares()
+    d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])
+    assert "strain_stiffening" in {r["effect"] for r in d["rows"]}
+    assert d["recommended"] == expected, d["rows"]
+    if expected != "none":
+        # measured: predicted drop 64 %, p 2.6e-3 (the NH fit took C1 545, D1 2.7e-3); the
+        # one-step C2 (800) is far below the truth, as the linearization at C2 = 0 predicts
+        top = d["rows"][0]
+        assert top["effect"] == expected and top["predicted_drop"] > 0.3 and top["estimate"]["C2"] > 0
+
+
+@pytest.mark.slow
+def test_discover_adds_strain_stiffening_to_a_neo_hookean_base(tiny):
+    from liverinv.diagnose.discover import discover
+    data = noisy_measurements(tiny.run("elastic", E, ramp_history(4e-3, 2e-3, frames=17, unload=True)), 0)
+    nm = NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {})
+    steps = discover(lambda lw, fixed, noise: Objective(tiny, lw, data, fixed=fixed, noise=noise or nm), "NH",
+                     start=dict(C1=500.0, D1=1e-3), max_steps=1)["steps"]
+    print([(s["added"], s["phi_vol"], s["params"]) for s in steps])
+    assert [s["added"] for s in steps] == ["", "strain_stiffening"]
+    assert steps[1]["phi_vol"] < 0.5 * steps[0]["phi_vol"]
+    for k in ("C1", "C2", "D1"):
+        assert steps[1]["params"][k] == pytest.approx(E[k], rel=0.1)
+
+
+def test_user_fixed_values_are_carried_until_an_effect_frees_them():
+    """discover --fixed C2=0 on the elastic law is the neo-Hookean base: strain stiffening is a
+    candidate, and the value stays held in every later law except the one that adds C2."""
+    from liverinv.diagnose.discover import _with_user_fixed
+    assert "strain_stiffening" in {e.name for e in available_effects("elastic", {"C2": 0.0})}
+    assert "strain_stiffening" not in {e.name for e in available_effects("elastic")}
+    user = {"C2": 0.0, "D1": 1e-3}
+    assert _with_user_fixed("SR", {}, user, ["shear_relaxation"]) == user
+    assert _with_user_fixed("elastic", {}, user, ["strain_stiffening"]) == {"D1": 1e-3}
+    assert _with_user_fixed("BR", {"D2": 1e3}, user, ["bulk_relaxation"]) == {**user, "D2": 1e3}
+    assert _with_user_fixed("PE", {}, {"kappa": 1e-8}, []) == {"kappa": 1e-8}
+    assert _with_user_fixed("SR", {}, {"kappa": 1e-8}, []) == {}       # a law without it
+
+
 def test_drained_biphasic_null_reproduces_the_elastic_model(tiny):
     """The poroelastic refit starts from a biphasic model at kappa = KAPPA_DRAINED: on the fit's
     own space its residual is the elastic one (measured: 1.4e-3 of the largest, the

@@ -20,6 +20,9 @@ def register(sub):
     p.add_argument("--observation", choices=["nodes", "tracker"])
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
     p.add_argument("--start", action="append", default=[], metavar="NAME=VALUE")
+    p.add_argument("--fixed", action="append", default=[], metavar="NAME=VALUE",
+                   help="held fixed in the base law and every later law that has it, unless the added "
+                        "effect is made of it (e.g. C2=0: a neo-Hookean base, as the law NH) (repeatable)")
     p.add_argument("--max-steps", type=int, default=3)
     p.add_argument("--inclusions", metavar="JSON|FILE", help="known inclusions of the base model; " + INCLUSIONS_HELP)
     p.add_argument("--out", type=Path, required=True, help="DISCOVERY.nc")
@@ -45,6 +48,11 @@ def run(args) -> int:
     if args.max_steps < 0:
         raise UserError("--max-steps must be >= 0")
     start = {**get_law(args.law).defaults, **parse_assignments(args.start, "--start")}
+    fixed = parse_assignments(args.fixed, "--fixed")
+    try:
+        get_law(args.law).resolve({**{k: v for k, v in start.items() if k not in fixed}, **fixed})
+    except LawError as e:
+        raise UserError(str(e)) from None
     inclusions = inclusions_arg(args.inclusions)
 
     def objective_for(law, fixed, noise):
@@ -60,7 +68,7 @@ def run(args) -> int:
     from tqdm import tqdm
     bar = tqdm(desc=f"discover from {args.law}", unit="solve", disable=None)
     try:
-        out = discover(objective_for, args.law, start, args.max_steps, progress=lambda rec: bar.update(1))
+        out = discover(objective_for, args.law, start, args.max_steps, progress=lambda rec: bar.update(1), fixed=fixed)
     except ValueError as e:
         raise UserError(str(e)) from None
     finally:
@@ -78,7 +86,7 @@ def run(args) -> int:
                                     "searched (multi-start, trials) on frame pairs merged pairs // 30 at a time "
                                     "and every reported fit finished on all frames "
                                     "(liverinv.identify.search.SEARCH_PAIRS)",
-                           inclusions=json.dumps([i.to_json() for i in inclusions]))
+                           inclusions=json.dumps([i.to_json() for i in inclusions]), fixed=json.dumps(fixed))
     write_netcdf(ds, args.out)
     if args.figures:
         from ..diagnose.figures import plot_discovery

@@ -16,7 +16,7 @@ def register(sub):
                        description=__doc__)
     p.add_argument("study", nargs="?", help="study YAML (flags below override its keys)")
     p.add_argument("--mesh", help="tet10 mesh file (groups bottom, side, top_free, footprint)")
-    p.add_argument("--law", help="constitutive law: elastic, SR, SR_low, SR_high, BR, SBR, ...")
+    p.add_argument("--law", help="constitutive law: NH, elastic, SR, SR_low, SR_high, BR, SBR, ...")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="material parameter in SI units (repeatable)")
     p.add_argument("--control", choices=["displacement", "force"])

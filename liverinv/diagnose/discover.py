@@ -46,7 +46,7 @@ from ..forward import Inclusion
 from ..identify.optimize import Fit
 from ..identify.search import SEARCH_PAIRS, merge_factor
 from ..laws import PARAMS, get_law
-from .effects import law_with
+from .effects import CATALOG, law_with
 from .score import MIN_DROP, diagnose, refine_inclusion
 
 __all__ = ["discover", "fit_law", "trial_rows"]
@@ -105,10 +105,21 @@ def _clip_start(law, p):
     return out
 
 
-def discover(objective_for, base_law, start=None, max_steps=3, progress=None) -> dict:
+def _with_user_fixed(law, fixed, user_fixed, effects):
+    """The fixed values of `law` (`law_with`'s nulls) and the user's own, except those an added
+    effect frees (C2 of a neo-Hookean base held at 0 is freed by strain stiffening)."""
+    freed = {p for e in effects for p in CATALOG[e].needs}
+    free = set(get_law(law).free)
+    return {**{k: v for k, v in user_fixed.items() if k in free and k not in freed}, **fixed}
+
+
+def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fixed=None) -> dict:
     """`objective_for(law, fixed, noise)` builds the objective of a law on the data (noise None:
-    the data's own levels); `progress(rec)` is called after every forward solve of the fits.
-    Returns the steps (law, added effect, fit and diagnosis figures)."""
+    the data's own levels); `progress(rec)` is called after every forward solve of the fits;
+    `fixed`: the user's values held fixed in the base law (and in every later law that has
+    them, unless the added effect is made of them). Returns the steps (law, added effect, fit
+    and diagnosis figures)."""
+    user_fixed = dict(fixed or {})
     held = []          # fitted inclusions added so far: every later model holds their spheres
 
     def objective(law, fixed, noise, more=()):
@@ -118,9 +129,9 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
             obj.forward.inclusions = [*obj.forward.inclusions, *held, *more]
         return obj
 
-    obj = objective(base_law, {}, None)
+    obj = objective(base_law, user_fixed, None)
     law = get_law(base_law)
-    start = {k: v for k, v in (start or law.defaults).items() if k in law.free}
+    start = {k: v for k, v in (start or law.defaults).items() if k in law.free and k not in user_fixed}
     m = merge_factor(obj, SEARCH_PAIRS)
     t0 = time.perf_counter()
     n_search = 0
@@ -136,7 +147,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
     noise = fit.obj.noise
     obj = fit.obj
     steps = []
-    current_law, fixed, added = base_law, {}, []
+    current_law, fixed, added = base_law, dict(user_fixed), []
     params = res["best"]["params"]
     rec = res["best"]
     stopped = f"reached --max-steps {max_steps}"
@@ -159,6 +170,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None) ->
                 row = dict(row, estimate=refine_inclusion(obj, params, fit.names, fit.log_scale, rec["phi_vol"],
                                                           row["estimate"]))
             new_law, new_fixed = law_with(base_law, added + [row["effect"]])
+            new_fixed = _with_user_fixed(new_law, new_fixed, user_fixed, added + [row["effect"]])
             guess = {**params, **fixed, **row["estimate"]}
             guess = _clip_start(new_law, {**get_law(new_law).defaults,
                                           **{k: v for k, v in guess.items() if k not in new_fixed}})

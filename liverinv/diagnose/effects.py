@@ -201,7 +201,7 @@ def law_with(law: str, effects) -> tuple[str, dict]:
     if not candidates:
         raise ValueError(f"no law has the parameters {sorted(need)}")
     best = min(candidates, key=lambda lw: len(lw.free))
-    null = {"D2": PARAMS["D2"].upper, "g1": 0.0, "tau_g1": 1.0, "k1": 0.0, "tau_k1": 1.0, "kappa": KAPPA_DRAINED}
+    null = {"C2": 0.0, "D2": PARAMS["D2"].upper, "g1": 0.0, "tau_g1": 1.0, "k1": 0.0, "tau_k1": 1.0, "kappa": KAPPA_DRAINED}
     fixed = {k: null[k] for k in best.free if k not in need}
     order = [t for t in TERMS if t in terms]
     return "+".join([best.name, *order]), fixed

@@ -122,8 +122,9 @@ def discovery_objective(ds: xr.Dataset, law=None, bundle=None, flow=None, mesh=N
 
     a = ds.attrs
     model_mesh = a.get("model_mesh") if a.get("model_mesh") not in (None, "", a["mesh"]) else None
+    fixed = {} if law else json.loads(a.get("fixed") or "{}")     # the user's values held in the base law
     obj, _ = objective_from_files(bundle or a["bundle"], flow or a["flow"], mesh or a["mesh"], law or str(ds.law.values[0]),
-                                  model_mesh=model_mesh)
+                                  fixed, model_mesh=model_mesh)
     obj = obj.with_noise(NoiseModel(**json.loads(a["noise"])))
     if forward:
         obj.forward = ForwardModel(obj.forward.mesh, quadrature_order=obj.forward.quadrature_order, **forward)
