@@ -23,6 +23,7 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 E = dict(C1=200.0, C2=5000.0, D1=1.5e-3)
 SR = dict(E, g1=0.4, tau_g1=0.5)
+SHALLOW = {"control": "displacement", "depth": 3.5e-3, "rate": 3.5e-3 / 3, "frames": 31, "unload": True}
 
 
 def inclusion(contrast, radius_m=0.005):
@@ -40,6 +41,10 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "slip": ("elastic", E, {"contact": {"support": "sliding"}}, "elastic"),
          "poro": ("PE", dict(E, kappa=1e-8), {}, "elastic"),
          "inclusion": ("elastic", E, inclusion(3.0), "elastic"),
+         # strain stiffening behind a neo-Hookean base (the reduced polynomial's C2 term), and its
+         # null; 3.5 mm over the same 6 s cycle: NH folds the coarse mesh's punch rim at 4.75 mm
+         "stiffening": ("elastic", E, {"loading": SHALLOW}, "NH"),
+         "nh_null": ("NH", dict(C1=600.0, D1=5e-4), {"loading": SHALLOW}, "NH"),
          "sr_null": ("SR", SR, {}, "SR"),
          "sr_poro": ("PSR", dict(SR, kappa=1e-8), {}, "SR"),
          "sr_bulk": ("SBR", dict(SR, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "SR"),

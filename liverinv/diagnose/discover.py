@@ -144,6 +144,11 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     else:
         fit, res = fit_law(obj, start, balance=obj.noise is not None, progress=progress)
     wall_fit = time.perf_counter() - t0
+    if res["best"] is None:
+        errors = [r.get("message", "") for r in fit.history if r.get("message")]
+        raise ValueError(f"the base fit of {base_law} failed: no forward solve succeeded in {len(fit.history)} "
+                         f"solves (first error: {errors[0][:200] if errors else 'none reported'}); try --start "
+                         f"values nearer the data, or a law that stays solvable at this indentation depth")
     noise = fit.obj.noise
     obj = fit.obj
     steps = []
