@@ -92,9 +92,6 @@ class ForwardModel:
         or `compliant_bottom`, puts a tangential spring on a fixed bottom instead of fixing
         u_x, u_y there (at c_bottom = 0 the same to about 1e-6)."""
         law = get_law(law_name)
-        if law.biphasic:
-            return Biphasic(self.biphasic_space(), self.element_params(law_name, params, region_params),
-                            punch=self.punch, support=self.support, drained=self.drained)
         support = self.support
         if compliant_bottom or "c_bottom" in law.free:
             if self.support != "fixed":
@@ -102,6 +99,9 @@ class ForwardModel:
             support = "compliant"
         if "k_punch" in law.free and self.punch != "frictionless":
             raise ValueError(f"punch friction is a spring on a frictionless punch; this model's punch is {self.punch!r}")
+        if law.biphasic:
+            return Biphasic(self.biphasic_space(), self.element_params(law_name, params, region_params),
+                            punch=self.punch, support=support, drained=self.drained)
         return Indentation(self.space, self.element_params(law_name, params, region_params),
                            punch=self.punch, support=support)
 

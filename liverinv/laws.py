@@ -5,7 +5,7 @@ seed paper (Eqs. 9-11, plus the biphasic permeability of Eq. 7): parameters not 
 free take the value in `fixed`, or the neutral value of `NEUTRAL` (no quartic bulk term, no
 relaxation, frictionless punch, bonded bottom).
 
-Boundary terms compose with any solid law by name: ``"SR+punch_friction"`` is SR with the
+Boundary terms compose with any law by name (the biphasic ones too): ``"SR+punch_friction"`` is SR with the
 tangential stiffness of the punch footprint ``k_punch`` as one more free parameter,
 ``"elastic+bottom_slip"`` elastic with the tangential compliance of the bottom face
 ``c_bottom``, ``"elastic+inclusion"`` elastic with the stiffness contrast ``inc_scale`` of a
@@ -152,8 +152,6 @@ def get_law(name: str) -> Law:
     if bad or len(set(terms)) < len(terms):
         raise LawError(f"law {name!r}: unknown or repeated term(s) {bad or terms}; boundary terms: {', '.join(TERMS)}")
     law = LAWS[base]
-    if law.biphasic and set(terms) - {"inclusion"}:
-        raise LawError(f"law {name!r}: punch friction and bottom slip are not built for the biphasic model")
     extra = [p for t in terms for p in TERMS[t][0]]
     defaults = dict(law.defaults)
     for t in terms:

@@ -165,6 +165,23 @@ def test_planted_poroelastic_flow_is_significant(tiny):
     assert set(d["eligible"]) <= set(d["significant"])
 
 
+@pytest.mark.parametrize("support, expected", [("sliding", "bottom_slip"), ("fixed", "none")])
+def test_biphasic_base_is_diagnosed_with_the_boundary_terms(tiny, support, expected):
+    """PE truth (kappa 1e-8) with a sliding bottom, fitted with PE on a fixed bottom: bottom
+    slip is found through the biphasic model's own sensitivity (measured: predicted drop 0.31,
+    p 2e-8); on PE data with the fixed bottom nothing is recommended."""
+    truth_model = ForwardModel(tiny.mesh, support=support) if support != "fixed" else tiny
+    run = truth_model.run("PE", dict(E, kappa=1e-8), ramp_history(4e-3, 2e-3, frames=17, unload=True))
+    obj = Objective(tiny, "PE", noisy_measurements(run, 0), noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
+    fit = Fit(obj, dict(C1=150.0, C2=6000.0, D1=1e-3, kappa=2e-8))
+    out = fit.least_squares()
+    d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])
+    assert {"punch_friction", "bottom_slip", "shear_relaxation"} <= {r["effect"] for r in d["rows"]}
+    assert d["recommended"] == expected, d["rows"]
+    if expected != "none":
+        assert d["rows"][0]["predicted_drop"] > 0.1 and d["rows"][0]["p_value"] < 1e-4
+
+
 @pytest.mark.slow
 def test_discover_adds_the_planted_effect(tiny):
     """Discover from the elastic law on data with a bonded punch, and with Darcy flow: the

@@ -62,20 +62,40 @@ def test_spring_limits_are_the_contact_models(mesh):
     assert fixed < mid < bonded
 
 
+def test_biphasic_spring_limits_are_the_contact_models(mesh):
+    """The same springs on the biphasic model (kappa 1e-8, 3 mm at 2 mm/s): at their nulls
+    the frictionless / fixed model, stiff the bonded / sliding one. Measured: compliant at
+    c_bottom 0 2e-8, bonded 1.216 and sliding 0.832 of the fixed force, k_punch 1e12 2.4e-6
+    from bonded, c_bottom 1e-2 3.0e-4 from sliding."""
+    PE = dict(E, kappa=1e-8)
+    fixed = force(mesh, "PE", PE)
+    assert force(mesh, "PE+punch_friction", dict(PE, k_punch=0.0)) == fixed
+    assert force(mesh, "PE+bottom_slip", dict(PE, c_bottom=0.0)) == pytest.approx(fixed, rel=1e-6)
+    bonded = force(mesh, "PE", PE, punch="bonded")
+    sliding = force(mesh, "PE", PE, support="sliding")
+    assert bonded > 1.15 * fixed and sliding < 0.9 * fixed
+    assert force(mesh, "PE+punch_friction", dict(PE, k_punch=1e12)) == pytest.approx(bonded, rel=2e-5)
+    assert force(mesh, "PE+bottom_slip", dict(PE, c_bottom=1e-2)) == pytest.approx(sliding, rel=1e-3)
+
+
 @pytest.mark.parametrize("name, law, step", [("k_punch", "elastic+punch_friction", 1e3),
-                                             ("c_bottom", "elastic+bottom_slip", 1e-9)])
+                                             ("c_bottom", "elastic+bottom_slip", 1e-9),
+                                             ("k_punch", "PE+punch_friction", 1e3),
+                                             ("c_bottom", "PE+bottom_slip", 1e-9)])
 def test_sensitivity_at_the_null_matches_differences_of_solves(mesh, name, law, step):
     """d u / d(amplitude) at the null (0) against a Richardson forward difference
-    (amplitudes h and 2h) of whole solves."""
+    (amplitudes h and 2h) of whole solves, on the solid and on the biphasic model
+    (kappa 1e-8: the generic sensitivity step)."""
     fm = ForwardModel(mesh)
     hist = ramp_history(3e-3, 2e-3, frames=5, unload=True)
-    null = dict(E, **{name: 0.0})
+    base = dict(E, kappa=1e-8) if get_law(law).biphasic else E
+    null = dict(base, **{name: 0.0})
     model = fm.model(law, null)
-    u = lambda a: solve_history(fm.model(law, dict(E, **{name: a})), hist.time, hist.value, "displacement").u
+    u = lambda a: solve_history(fm.model(law, dict(base, **{name: a})), hist.time, hist.value, "displacement").u
     u0, u1, u2 = u(0.0), u(step), u(2 * step)
     fd = (4 * (u1 - u0) - (u2 - u0)) / (2 * step)
     eps = step * 1e-6
-    sens = Sensitivity([model.with_params(fm.element_params(law, dict(E, **{name: eps})))], eps)
+    sens = Sensitivity([model.with_params(fm.element_params(law, dict(base, **{name: eps})))], eps)
     h = solve_history(model, hist.time, hist.value, "displacement", sensitivity=sens)
     assert np.abs(fd).max() > 1e-3 * np.abs(u1 - u0).max() / step
     assert np.abs(h.du[:, 0] - fd).max() < 2e-3 * np.abs(fd).max()
@@ -86,12 +106,14 @@ def test_laws_compose_with_boundary_terms():
     assert law.free == get_law("SR").free + ("k_punch",)
     assert law.resolve(dict(law.defaults))["c_bottom"] == 0.0
     assert get_law("elastic+punch_friction+bottom_slip").free[-2:] == ("k_punch", "c_bottom")
-    for bad in ["SR+friction", "SR+punch_friction+punch_friction", "PE+bottom_slip", "nope+bottom_slip"]:
+    assert get_law("PE+bottom_slip").free == get_law("PE").free + ("c_bottom",)
+    for bad in ["SR+friction", "SR+punch_friction+punch_friction", "nope+bottom_slip"]:
         with pytest.raises(LawError):
             get_law(bad)
     assert law_with("SR", ["punch_friction"]) == ("SR+punch_friction", {})
     assert law_with("elastic", ["shear_relaxation", "bottom_slip"]) == ("SR+bottom_slip", {})
     assert law_with("elastic+bottom_slip", ["punch_friction"]) == ("elastic+punch_friction+bottom_slip", {})
+    assert law_with("elastic+bottom_slip", ["poroelastic"]) == ("PE+bottom_slip", {})
 
 
 def test_bad_contact_combinations_are_refused(mesh):

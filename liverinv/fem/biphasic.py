@@ -41,7 +41,8 @@ the permeation term of K_pu (the flux depends on the deformation); it is kept (e
 
 Reduced unknowns: [free u dofs, punch depth d, free p dofs]; the punch entry of the residual
 is the total indenter force (solid plus fluid), so `solver.solve_history` drives this model
-unchanged. Boundary conditions: bottom fixed or sliding, frictionless or bonded punch, side
+unchanged. Boundary conditions: bottom fixed, sliding or compliant, frictionless (with the
+tangential spring k_punch of partial friction) or bonded punch, side
 free or laterally confined (u_x = u_y = 0), p = 0 on the `drained` groups.
 
 Verification (tests/test_biphasic.py): Terzaghi consolidation, undrained incompressible and
@@ -65,9 +66,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .assembly import ReducedAssembler
-from .indentation import Evaluation
+from .indentation import Evaluation, spring_stiffnesses
 from .material import QLVState, _det, element_stiffness, hyperelastic_terms, qlv_commit, qlv_relaxed_stress
 from .space import Space
+from .springs import FaceSpring
 
 __all__ = ["Biphasic", "BiphasicState", "BiphasicEvaluation", "DRAINED_DEFAULT", "febio8_space"]
 
@@ -134,8 +136,10 @@ class Biphasic:
     ----------
     space : Space
     params : dict with C1, C2, D1 (D2 optional), kappa: scalars or (ne,) arrays
-    punch : "frictionless" or "bonded"
-    support : "fixed" or "sliding" (bottom)
+    punch : "frictionless" or "bonded" (frictionless: k_punch, a tangential spring on the
+        footprint, as in `indentation.Indentation`)
+    support : "fixed", "sliding" or "compliant" (bottom; compliant: tangential spring of
+        compliance c_bottom)
     side : "free" or "confined" (u_x = u_y = 0 on the `side` nodes: confined compression)
     drained : mesh groups with p = 0 (free draining); all other faces are impermeable
     pressure_scale : s in Pa/m (default mu0 / h, h = median cube root of element volume)
@@ -150,8 +154,8 @@ class Biphasic:
                  side="free", drained=DRAINED_DEFAULT, pressure_scale=None):
         if punch not in ("frictionless", "bonded"):
             raise ValueError(f"punch contact must be 'frictionless' or 'bonded', not {punch!r}")
-        if support not in ("fixed", "sliding"):
-            raise ValueError(f"support must be 'fixed' or 'sliding', not {support!r}")
+        if support not in ("fixed", "sliding", "compliant"):
+            raise ValueError(f"support must be 'fixed', 'sliding' or 'compliant', not {support!r}")
         if side not in ("free", "confined"):
             raise ValueError(f"side must be 'free' or 'confined', not {side!r}")
         self.space, self.punch, self.support, self.side = space, punch, support, side
@@ -163,6 +167,8 @@ class Biphasic:
         bottom = mesh.nodes("bottom")
         if support == "fixed":
             fixed[bottom] = True
+        elif support == "compliant":
+            fixed[bottom, 2] = True
         else:
             fixed[bottom, 2] = True
             X = mesh.points[bottom]
@@ -202,6 +208,9 @@ class Biphasic:
         self.punch_diag = np.nonzero((self.asm.rows[self.punch_positions] == self.punch_index)
                                      & (self.asm.indices[self.punch_positions] == self.punch_index))[0]
         self.Np, self.dNpdX = pressure_shape(space)
+        # the tangential springs of `indentation` (friction, slip) act on the u dofs alone
+        self.punch_spring = FaceSpring(mesh.points, mesh.facets["footprint"], self.asm) if punch == "frictionless" else None
+        self.bottom_spring = FaceSpring(mesh.points, mesh.facets["bottom"], self.asm) if support == "compliant" else None
         self._pressure_scale = pressure_scale
         self.set_params(params)
         log.debug("biphasic: %d u unknowns, %d free of %d pressure nodes, s = %.3g Pa/m",
@@ -222,8 +231,7 @@ class Biphasic:
         self._g1, self._tau_g1 = col(params.get("g1", 0.0)), col(params.get("tau_g1", 1.0))
         self._k1, self._tau_k1 = col(params.get("k1", 0.0)), col(params.get("tau_k1", 1.0))
         self.viscous = bool(np.any(self._g1 > 0) or np.any(self._k1 > 0))
-        if np.any(np.asarray(params.get("k_punch", 0.0))) or np.any(np.asarray(params.get("c_bottom", 0.0))):
-            raise ValueError("punch friction and bottom slip are not built for the biphasic model")
+        self.k_punch, self.k_bottom = spring_stiffnesses(params, self.punch_spring, self.bottom_spring)
         self._kappa = col(params["kappa"])
         if np.any(~np.isfinite(self._kappa)) or np.any(self._kappa < 0):
             raise ValueError("kappa must be finite and >= 0")
@@ -280,11 +288,24 @@ class Biphasic:
         CiGp = (Ci @ Gp[..., None])[..., 0]
         fe_p = -s * (((J - state.J_n) * sp.dV) @ self.Np
                      + ((self.dNpdX @ (kdt[..., None] * CiGp)[..., None])[..., 0]).sum(axis=1))
-        r = self.asm.vector(np.concatenate([fe_u, fe_p], axis=1))
+        r = self.asm.vector(np.concatenate([fe_u, fe_p], axis=1)) + self.spring_force(q)
         K = None
         if tangent:
             K = self.asm.matrix(self._element_tangent(F, S, t, J, p, Gp, Ci, kdt, a_g, a_k))
+            for f, k in self._springs():
+                f.add_tangent(K, k)
         return BiphasicEvaluation(r, K, S_iso, S_vol, float(J.min()), J=J, fe_p=fe_p)
+
+    def _springs(self):
+        return [(f, k) for f, k in ((self.punch_spring, self.k_punch), (self.bottom_spring, self.k_bottom))
+                if f is not None and k > 0]
+
+    def spring_force(self, q) -> np.ndarray:
+        """The tangential springs' part of the reduced residual at q."""
+        r = np.zeros(self.n_red)
+        for f, k in self._springs():
+            r += f.force(k, q)
+        return r
 
     def _element_tangent(self, F, S, t, J, p, Gp, Ci, kdt, a_g=1.0, a_k=1.0):
         sp, s = self.space, self.s

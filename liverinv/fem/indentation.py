@@ -51,6 +51,21 @@ def _scalar(v, name) -> float:
     return float(a[0])
 
 
+def spring_stiffnesses(params, punch_spring, bottom_spring) -> tuple[float, float]:
+    """(k_punch, k_bottom) of the footprint's and the bottom's tangential springs from the
+    parameters k_punch and c_bottom (k_bottom = 1 / (c_bottom + C_BONDED)), checked against
+    the springs the model has."""
+    k_punch = _scalar(params.get("k_punch", 0.0), "k_punch")
+    c_bottom = _scalar(params.get("c_bottom", 0.0), "c_bottom")
+    if k_punch < 0 or c_bottom < 0:
+        raise ValueError("k_punch and c_bottom must be >= 0")
+    if k_punch > 0 and punch_spring is None:
+        raise ValueError("k_punch needs a frictionless punch (a bonded punch holds the footprint already)")
+    if c_bottom > 0 and bottom_spring is None:
+        raise ValueError("c_bottom needs support='compliant'")
+    return k_punch, 1.0 / (c_bottom + C_BONDED)
+
+
 class Indentation:
     """Finite-strain indentation model on a tet10 space.
 
@@ -121,15 +136,7 @@ class Indentation:
         self._g1, self._tau_g1 = p.get("g1", 0.0), p.get("tau_g1", 1.0)
         self._k1, self._tau_k1 = p.get("k1", 0.0), p.get("tau_k1", 1.0)
         self.viscous = bool(np.any(self._g1 > 0) or np.any(self._k1 > 0))
-        self.k_punch = _scalar(params.get("k_punch", 0.0), "k_punch")
-        c_bottom = _scalar(params.get("c_bottom", 0.0), "c_bottom")
-        if self.k_punch < 0 or c_bottom < 0:
-            raise ValueError("k_punch and c_bottom must be >= 0")
-        if self.k_punch > 0 and self.punch_spring is None:
-            raise ValueError("k_punch needs a frictionless punch (a bonded punch holds the footprint already)")
-        if c_bottom > 0 and self.bottom_spring is None:
-            raise ValueError("c_bottom needs support='compliant'")
-        self.k_bottom = 1.0 / (c_bottom + C_BONDED)
+        self.k_punch, self.k_bottom = spring_stiffnesses(params, self.punch_spring, self.bottom_spring)
 
     def with_params(self, params: dict) -> "Indentation":
         """A copy with other parameters, sharing the space and assembler."""
