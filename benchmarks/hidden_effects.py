@@ -56,6 +56,11 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "poro_k1e-6": ("PE", dict(E, kappa=1e-6), {}, "elastic"),
          "inclusion_x5": ("elastic", E, inclusion(5.0), "elastic"),
          "inclusion_x10": ("elastic", E, inclusion(10.0), "elastic"),
+         # sizes between the null and the limit: partial friction and slip, a softer sphere
+         "friction_partial": ("elastic+punch_friction", dict(E, k_punch=1e6), {}, "elastic"),
+         "friction_k1e7": ("elastic+punch_friction", dict(E, k_punch=1e7), {}, "elastic"),
+         "slip_partial": ("elastic+bottom_slip", dict(E, c_bottom=2e-5), {}, "elastic"),
+         "inclusion_soft": ("elastic", E, inclusion(0.2), "elastic"),
          # two effects at once
          "shear_friction": ("SR", SR, {"contact": {"punch": "bonded"}}, "elastic"),
          "poro_slip": ("PE", dict(E, kappa=1e-8), {"contact": {"support": "sliding"}}, "elastic")}

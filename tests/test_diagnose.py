@@ -57,7 +57,20 @@ def test_planted_effect_is_found_and_null_data_stay_silent(tiny, truth_law, trut
     # compliance C_BONDED, for the slip direction: the fixed bottom to about 1e-8 in Phi)
     assert d["phi"] == pytest.approx(out["best"]["phi"], rel=1e-6)
     assert d["recommended"] == expected, d["rows"]
-    assert set(d["splits"]) == {"region", "depth", "time", "component"}
+    assert set(d["splits"]) == {"region", "depth", "time", "component", "strain_rate", "gradient", "gradient_data"}
+    # where the misfit lies (measured: shear relaxation missing, 52 % of Phi_vol in the top
+    # strain-rate tercile; bulk relaxation missing, the residual's velocity gradient 48 %
+    # volumetric against the data's 27 %; a sliding bottom, 7 % in the top tercile; null data
+    # 33 % in each)
+    rate, grad = d["splits"]["strain_rate"], d["splits"]["gradient"]
+    if expected == "shear_relaxation":
+        assert rate["high"] > 0.45
+    elif expected == "bulk_relaxation":
+        assert grad["volumetric"] > d["splits"]["gradient_data"]["volumetric"] + 0.1
+    elif expected == "bottom_slip":
+        assert rate["high"] < 0.15
+    else:
+        assert all(0.25 < v < 0.42 for v in rate.values())
     for parts in d["splits"].values():
         assert sum(parts.values()) == pytest.approx(1.0, rel=1e-9)
     assert {r["effect"] for r in d["rows"]} == {e.name for e in available_effects("elastic")}

@@ -50,6 +50,7 @@ def run(args) -> int:
     from ..cli import UserError
     from ..diagnose.files import diagnosis_dataset, explain
     from ..diagnose.score import diagnose
+    from ..diagnose.splits import SPLIT_MEANING
     from ..fileio import write_netcdf
     from ..laws import PARAMS
 
@@ -66,7 +67,7 @@ def run(args) -> int:
         from ..diagnose.figures import plot_diagnosis
         plot_diagnosis(out, args.figures / "diagnosis.png")
     for split, parts in d.get("splits", {}).items():
-        print(f"Phi_vol by {split}: " + ", ".join(f"{k} {100 * v:.0f} %" for k, v in parts.items()))
+        print(f"{SPLIT_MEANING.get(split, 'Phi_vol')} by {split}: " + ", ".join(f"{k} {100 * v:.0f} %" for k, v in parts.items()))
     print(explain(d))
     print(f"wrote {args.out}: recommended {d['recommended']} ({d['wall_s']:.1f} s, {d['n_directions']} directions "
           f"in one solve); not tested: {', '.join(d['not_tested'])}")

@@ -11,13 +11,19 @@ from ..pipeline.figures import _plt, _save
 def plot_diagnosis(ds, out):
     plt = _plt()
     splits = [v for v in ds.data_vars if v.startswith("share_")]
-    fig, axes = plt.subplots(1, 1 + len(splits), figsize=(7 + 3.2 * len(splits), 3.5), squeeze=False)
-    ax = axes[0, 0]
-    for a, v in zip(axes[0, 1:], splits):
+    rows = 2 if len(splits) > 4 else 1
+    cols = -(-len(splits) // rows)
+    fig = plt.figure(figsize=(7 + 3.2 * cols, 3.5 * rows))
+    grid = fig.add_gridspec(rows, 1 + cols, width_ratios=[2.2] + [1] * cols)
+    ax = fig.add_subplot(grid[:, 0])
+    for j, v in enumerate(splits):
+        a = fig.add_subplot(grid[j // cols, 1 + j % cols])
         dim = ds[v].dims[0]
         a.bar(range(ds.sizes[dim]), 100 * ds[v].values, color="tab:blue")
         a.set_xticks(range(ds.sizes[dim]), ds[dim].values, rotation=20, fontsize=8)
-        a.set(ylabel="share of Phi_vol (%)", title=f"misfit by {dim}")
+        of = ds[v].attrs.get("long_name", "share of Phi_vol").split(" by ")[0]
+        a.set(ylabel=f"{of} (%)" if len(of) < 20 else "share (%)", title=f"misfit by {dim.replace('_', ' ')}" if "Phi_vol" in of else
+              f"{'residual' if dim == 'gradient' else 'tracked'} velocity gradient")
     y = np.arange(ds.sizes["effect"])
     ax.barh(y, 100 * ds.predicted_drop.values, color=["tab:green" if e == ds.attrs["recommended"] else "0.6"
                                                        for e in ds.effect.values])

@@ -9,6 +9,7 @@ import numpy as np
 import xarray as xr
 
 from ..fileio import provenance
+from .splits import SPLIT_MEANING
 
 __all__ = ["diagnosis_dataset", "discovery_dataset", "discovery_objective", "explain"]
 
@@ -34,7 +35,23 @@ def explain(d: dict, n=3) -> str:
                      f"{100 * row['predicted_drop']:.1f} % of Phi_vol (p = {row['p_value']:.2g} after the scan's "
                      f"correction){'; one-step estimate ' + est if est else ''}; it acts {row['where'].split(' (')[0]}. "
                      f"{verdict}.")
-    return "\n".join(lines)
+    where = _where_it_fails(d.get("splits", {}))
+    return "\n".join(lines + ([where] if where else []))
+
+
+def _where_it_fails(splits: dict) -> str:
+    """One sentence on the misfit's shape: its strain-rate bins and its velocity gradient's
+    volumetric share against the data's (see `splits`)."""
+    words = []
+    rate = splits.get("strain_rate")
+    if rate:
+        words.append(f"{100 * rate['high']:.0f} % of Phi_vol lies where the model's strain rate is in its top third "
+                     f"and {100 * rate['low']:.0f} % in its bottom third (33 % each if the misfit ignored the rate)")
+    grad, data = splits.get("gradient"), splits.get("gradient_data")
+    if grad and data:
+        words.append(f"the residual's velocity gradient is {100 * grad['volumetric']:.0f} % volumetric against "
+                     f"{100 * data['volumetric']:.0f} % for the tracked motion (more points at a missing change of volume)")
+    return ("Where the fit fails: " + "; ".join(words) + ".") if words else ""
 
 
 def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
@@ -57,7 +74,8 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
         coords=dict(effect=[r["effect"] for r in rows]),
     )
     for split, parts in d.get("splits", {}).items():
-        ds[f"share_{split}"] = (split, list(parts.values()), {"long_name": f"share of Phi_vol by {split}", "units": "1"})
+        ds[f"share_{split}"] = (split, list(parts.values()),
+                                {"long_name": f"share of {SPLIT_MEANING.get(split, 'Phi_vol')} by {split}", "units": "1"})
         ds = ds.assign_coords({split: list(parts)})
     ds.attrs = provenance(recommended=d["recommended"], alpha=d["alpha"], min_drop=d["min_drop"], scan=d["scan"],
                           not_tested=d["not_tested"], n_directions=d["n_directions"], wall_s=d["wall_s"],

@@ -116,7 +116,7 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
     ok = [row for row in rows if row["p_value"] < alpha and row["predicted_drop"] >= min_drop and row["physical"]]
     not_tested = {e.name: e.why_not for e in CATALOG.values() if not e.available}
     from .splits import misfit_splits
-    return dict(rows=rows, splits=misfit_splits(objective, r), recommended=ok[0]["effect"] if ok else "none",
+    return dict(rows=rows, splits=misfit_splits(objective, r, ev.v_fem), recommended=ok[0]["effect"] if ok else "none",
                 eligible=[row["effect"] for row in ok], alpha=alpha, min_drop=min_drop,
                 significant=[row["effect"] for row in rows if row["p_value"] < alpha and row["physical"]],
                 residual_check=float(np.sqrt(np.mean(r ** 2))), phi=float(ev.phi), phi_vol=float(ev.phi_vol),
