@@ -63,7 +63,9 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "inclusion_soft": ("elastic", E, inclusion(0.2), "elastic"),
          # two effects at once
          "shear_friction": ("SR", SR, {"contact": {"punch": "bonded"}}, "elastic"),
-         "poro_slip": ("PE", dict(E, kappa=1e-8), {"contact": {"support": "sliding"}}, "elastic")}
+         "poro_slip": ("PE", dict(E, kappa=1e-8), {"contact": {"support": "sliding"}}, "elastic"),
+         "poro_friction": ("PE", dict(E, kappa=1e-8), {"contact": {"punch": "bonded"}}, "elastic"),
+         "shear_bulk": ("SBR", dict(SR, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "elastic")}
 
 
 def mesh_file(name, out):

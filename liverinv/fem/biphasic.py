@@ -69,7 +69,7 @@ from .assembly import ReducedAssembler
 from .indentation import Evaluation, spring_stiffnesses
 from .material import QLVState, _det, element_stiffness, hyperelastic_terms, qlv_commit, qlv_relaxed_stress
 from .space import Space
-from .springs import FaceSpring
+from .springs import FaceSpring, SpringTerms
 
 __all__ = ["Biphasic", "BiphasicState", "BiphasicEvaluation", "DRAINED_DEFAULT", "febio8_space"]
 
@@ -129,7 +129,7 @@ def pressure_shape(space: Space):
     return Np, np.ascontiguousarray(dNp)
 
 
-class Biphasic:
+class Biphasic(SpringTerms):
     """Finite-strain biphasic indentation model (interface of `indentation.Indentation`).
 
     Parameters
@@ -295,17 +295,6 @@ class Biphasic:
             for f, k in self._springs():
                 f.add_tangent(K, k)
         return BiphasicEvaluation(r, K, S_iso, S_vol, float(J.min()), J=J, fe_p=fe_p)
-
-    def _springs(self):
-        return [(f, k) for f, k in ((self.punch_spring, self.k_punch), (self.bottom_spring, self.k_bottom))
-                if f is not None and k > 0]
-
-    def spring_force(self, q) -> np.ndarray:
-        """The tangential springs' part of the reduced residual at q."""
-        r = np.zeros(self.n_red)
-        for f, k in self._springs():
-            r += f.force(k, q)
-        return r
 
     def _element_tangent(self, F, S, t, J, p, Gp, Ci, kdt, a_g=1.0, a_k=1.0):
         sp, s = self.space, self.s

@@ -24,7 +24,7 @@ import numpy as np
 from .assembly import ReducedAssembler
 from .material import Kinematics, QLVState, element_stiffness, hyperelastic_terms, qlv_commit, qlv_relaxed_stress
 from .space import Space
-from .springs import FaceSpring
+from .springs import FaceSpring, SpringTerms
 
 __all__ = ["Indentation", "Evaluation"]
 
@@ -66,7 +66,7 @@ def spring_stiffnesses(params, punch_spring, bottom_spring) -> tuple[float, floa
     return k_punch, 1.0 / (c_bottom + C_BONDED)
 
 
-class Indentation:
+class Indentation(SpringTerms):
     """Finite-strain indentation model on a tet10 space.
 
     Parameters
@@ -181,17 +181,6 @@ class Indentation:
             for f, k in springs:
                 f.add_tangent(K, k)
         return Evaluation(r, K, S_iso, S_vol, float(J.min()))
-
-    def _springs(self):
-        return [(f, k) for f, k in ((self.punch_spring, self.k_punch), (self.bottom_spring, self.k_bottom))
-                if f is not None and k > 0]
-
-    def spring_force(self, q) -> np.ndarray:
-        """The tangential springs' part of the reduced residual at q."""
-        r = np.zeros(self.n_red)
-        for f, k in self._springs():
-            r += f.force(k, q)
-        return r
 
     def linearized_directions(self, variants, eps, is_force):
         """The batched, linearized sensitivity step along `variants` (`linearized`)."""

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["FaceSpring", "tri6_mass"]
+__all__ = ["FaceSpring", "SpringTerms", "tri6_mass"]
 
 # 6-point Gauss rule on the reference triangle (degree 4), area 1/2 in total
 _A, _B = 0.445948490915965, 0.091576213509771
@@ -72,3 +72,20 @@ class FaceSpring:
     def add_tangent(self, K, k):
         K.data[self.positions] += k * self.values
         return K
+
+
+class SpringTerms:
+    """The tangential springs of a model (mixed into `Indentation` and `Biphasic`): the
+    footprint's (`punch_spring`, stiffness `k_punch`) and the bottom's (`bottom_spring`,
+    `k_bottom`), either spring None where the model has none."""
+
+    def _springs(self):
+        return [(f, k) for f, k in ((self.punch_spring, self.k_punch), (self.bottom_spring, self.k_bottom))
+                if f is not None and k > 0]
+
+    def spring_force(self, q) -> np.ndarray:
+        """The tangential springs' part of the reduced residual at q."""
+        r = np.zeros(self.n_red)
+        for f, k in self._springs():
+            r += f.force(k, q)
+        return r
