@@ -288,6 +288,11 @@ def test_trial_rows_take_the_recommended_then_the_other_significant_candidates_o
     assert [r["tag"] for r in trial_rows(d)] == [0, 1, 2][:N_TRIALS]
     assert [r["tag"] for r in trial_rows(dict(d, eligible=["poroelastic"]), n=2)] == [2, 0]
     assert trial_rows(dict(d, eligible=[], significant=[])) == []
+    # a rival (Darcy flow for bulk relaxation) is refitted too, whatever its own score, beyond
+    # the cap (Darcy flow and a bonded punch behind elastic: Darcy flow not significant)
+    d3 = dict(d, significant=["bulk_relaxation", "nonlinear_bulk", "inclusion"])
+    assert [r["tag"] for r in trial_rows(d3, n=3)] == [0, 5, 1, 2]
+    assert [r["tag"] for r in trial_rows(dict(d3, eligible=["nonlinear_bulk"], significant=[]))] == [5]
 
 
 def test_explain_gives_each_candidate_its_own_verdict():

@@ -78,6 +78,8 @@ class Effect:
     why_not: str = ""
     force: Callable | None = None  # fm -> the added term's force direction (`fem.sensitivity`), for an
                                    # effect that no parameter variant of the solid model carries
+    rivals: tuple = ()            # effects that explain the same signature another way: when this one
+                                  # is refitted as a trial, they are too (`discover.trial_rows`)
     geometric: bool = False       # scanned over spheres of the mesh (an inclusion)
 
     def applies_to(self, law: str, fixed=()) -> bool:
@@ -157,7 +159,8 @@ CATALOG = {e.name: e for e in [
     Effect("shear_relaxation", "the shear stiffness relaxes over time (QLV Prony term on the isochoric stress)",
            "g1", "1", Linear("g1"), needs=("g1", "tau_g1"), scanned={"tau_g1": TAU_GRID_S}),
     Effect("bulk_relaxation", "the bulk stiffness relaxes over time (QLV Prony term on the volumetric stress)",
-           "k1", "1", Linear("k1"), needs=("k1", "tau_k1"), scanned={"tau_k1": TAU_GRID_S}),
+           "k1", "1", Linear("k1"), needs=("k1", "tau_k1"), scanned={"tau_k1": TAU_GRID_S},
+           rivals=("poroelastic",)),
     Effect("nonlinear_bulk", "the volume change stiffens at large compression (quartic bulk term, 1/D2)",
            "1/D2", "kPa", Reciprocal("D2", 1e3), needs=("D2",)),
     Effect("strain_stiffening", "the shear response stiffens with strain (second reduced-polynomial term C2)",
@@ -168,7 +171,7 @@ CATALOG = {e.name: e for e in [
            "c_bottom", "mm/kPa", Linear("c_bottom", 1e-6), needs=("c_bottom",)),
     Effect("poroelastic", "fluid flows through the solid and carries part of the load (biphasic, Darcy "
            "permeability kappa)", "1/kappa", "1e7 N s/m^4", Reciprocal("kappa", 1e7, KAPPA_DRAINED),
-           needs=("kappa",), force=_drained_darcy),
+           needs=("kappa",), force=_drained_darcy, rivals=("bulk_relaxation",)),
     Effect("inclusion", "a sphere of other stiffness inside the tissue (C1 and C2 scaled by inc_scale inside)",
            "inc_scale - 1", "1", sign=0.0, needs=("inc_scale",), geometric=True),
 ]}
