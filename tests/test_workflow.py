@@ -74,8 +74,11 @@ def test_fit_jobs_and_their_options_follow_the_study(tmp_path):
     assert not any(a.startswith("--start=tau_g1") for a in sr)          # held fixed, not started
     assert "--start=D1=0.0015" in sr                                    # the law's default
     nm = s.fit_arguments(next(j for j in s.fit_jobs() if j.tag == "SR_a_nelder-mead"))
-    assert "--design-points" not in nm
+    assert "--design-points" not in nm and "--tracker-response" not in nm
     assert s.truth_params() == {"C1": 200.0, "C2": 5000.0, "D1": 1.5e-3}
+    s = load_workflow_study(write_study(tmp_path / "r.yaml", fit={
+        "laws": ["elastic"], "seeds": {"a": {"C1": 140.0}}, "observation": "tracker", "tracker_response": True}))
+    assert "--tracker-response" in s.fit_arguments(s.fit_jobs()[0])
 
 
 @needs_snakemake

@@ -37,7 +37,7 @@ from .weights import VoxelWeights
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ImagingOptions", "SpeckleScene", "inverse_map"]
+__all__ = ["ImagingOptions", "SpeckleScene", "inverse_map", "warp_volume"]
 
 
 @dataclass
@@ -79,6 +79,22 @@ def inverse_map(u_grid_vox: np.ndarray, x_vox: np.ndarray, iterations: int = 6) 
     for _ in range(iterations):
         X = x_vox - _sample_grid(u_grid_vox, X)
     return X
+
+
+def warp_volume(reference: np.ndarray, u_grid_vox: np.ndarray, coef: np.ndarray | None = None) -> np.ndarray:
+    """`reference` warped by the displacement `u_grid_vox` (voxels, image axes, on the grid):
+    ``I(x) = I_ref(X)`` with ``x = X + u(X)`` (`inverse_map`), cubic B-splines (`coef`: the
+    reference's spline coefficients, if already computed); voxels that do not move keep their
+    value."""
+    g_shape = reference.shape
+    if coef is None:
+        coef = ndimage.spline_filter(np.asarray(reference, np.float32), order=3, output=np.float32, mode="mirror")
+    x = np.stack(np.unravel_index(np.arange(reference.size), g_shape), 1).astype(float)
+    moving = np.abs(u_grid_vox).max(axis=-1).ravel() > 1e-6
+    X = inverse_map(u_grid_vox, x[moving])
+    out = np.asarray(reference, np.float32).ravel().copy()
+    out[moving] = ndimage.map_coordinates(coef, X.T, order=3, prefilter=False, mode="mirror")
+    return out.reshape(g_shape)
 
 
 class SpeckleScene:
@@ -123,13 +139,7 @@ class SpeckleScene:
         g, opt = self.grid, self.opt
         u_grid = self.vw.to_grid(g.vec_to_vox(u_nodes_m))          # voxels, image axes
         if opt.mode == "warp":
-            x = np.stack(np.unravel_index(np.arange(g.size), g.shape), 1).astype(float)
-            moving = np.abs(u_grid).max(axis=-1).ravel() > 1e-6
-            X = inverse_map(u_grid, x[moving])
-            out = self.ref_bmode.ravel().copy()
-            out[moving] = ndimage.map_coordinates(self._coef, X.T, order=3, prefilter=False,
-                                                  mode="mirror")
-            out = out.reshape(g.shape)
+            out = warp_volume(self.ref_bmode, u_grid, self._coef)
             if opt.bmode_noise > 0:
                 out = out + opt.bmode_noise * self.rng.standard_normal(g.shape)
             return np.clip(out, 0.0, 1.0).astype(np.float32)
