@@ -34,12 +34,10 @@ def tracker_error(objective: Objective, params: dict, bundle, flow, tracking_mes
     model = objective.forward.model(objective.law, {**params, **objective.fixed})
     h = solve_history(model, objective.t_drive, objective.f_drive, objective.control, objective.options)
     d = objective.data
-    t_frames = np.concatenate([d.t0[:1], d.t1])
     u = np.asarray(h.u)
-    flat = u.reshape(len(objective.t_drive), -1)
-    u_frames = np.stack([np.interp(t_frames, objective.t_drive, flat[:, j]) for j in range(flat.shape[1])], 1)
-    u_frames = u_frames.reshape((len(t_frames),) + u.shape[1:])
-    response = tracker_response(bundle, flow, tracking_mesh, objective.forward.mesh, u_frames)
+    at_frames = objective.model_motion(objective.t_drive, u)[1]           # linear in time, as the objective
+    response = tracker_response(bundle, flow, tracking_mesh, objective.forward.mesh,
+                                at_frames(np.concatenate([d.t0[:1], d.t1])))
     predicted = objective.model_motion(objective.t_drive, objective.at_data_nodes(u))[0] * (d.t1 - d.t0)[:, None, None]
     return response - predicted
 

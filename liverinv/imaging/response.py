@@ -26,8 +26,10 @@ import logging
 import time
 
 import numpy as np
+from scipy import ndimage
 
 from .observation import track_options_of
+from .sequence import warp_volume
 from .tracking import NodalTracker
 from .weights import VoxelWeights
 
@@ -47,9 +49,6 @@ def tracker_response(bundle, flow, tracking_mesh, model_mesh, u_frames: np.ndarr
     if u_frames.shape[0] != flow.sizes["frame"] + 1:
         raise ValueError(f"u_frames holds {u_frames.shape[0]} frames; the flow has {flow.sizes['frame'] + 1}")
     t0 = time.perf_counter()
-    from scipy import ndimage
-
-    from .sequence import warp_volume
     ref = np.asarray(bundle.frame(0), np.float32)
     coef = ndimage.spline_filter(ref, order=3, output=np.float32, mode="mirror")
     model_vw = VoxelWeights.build(model_mesh.points, model_mesh.cells, grid)
