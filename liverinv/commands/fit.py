@@ -164,6 +164,7 @@ def _run(args) -> int:
         bar.set_postfix(phi=f"{best[0]:.3e}", refresh=False)
 
     from ..identify.optimize import CheckpointMismatch
+    from ..identify.response import continue_on_tracker_response
     try:
         fit, result, jac = _optimize(args, obj, start, progress, binding)
     except (CheckpointMismatch, ValueError) as e:
@@ -172,7 +173,13 @@ def _run(args) -> int:
     response = {}
     if args.tracker_response and result["best"] is not None:
         try:
-            fit, result, jac, response = _continue_on_tracker_response(args, obj, fit, result, progress, binding)
+            if args.observation != "tracker":
+                raise ValueError("--tracker-response needs --observation tracker (the operator it corrects)")
+            fit, result, response = continue_on_tracker_response(
+                obj, fit, result, args.bundle, args.flow, args.mesh, jacobian=args.jacobian,
+                max_evaluations=args.max_evaluations or 100, progress=progress, binding=binding,
+                checkpoint=str(Path(args.checkpoint) / "tracker-response") if args.checkpoint else None)
+            jac = result.get("jacobian")
         except (CheckpointMismatch, ValueError) as e:
             bar.close()
             raise UserError(str(e)) from None
@@ -219,43 +226,6 @@ def _set_aside_if_stale(ckpt: Path, binding):
     ckpt.rename(ckpt.with_name(f"{ckpt.name}.stale-{k}"))
     print(f"liverinv fit: checkpoint {ckpt} held solves of other inputs; moved to {ckpt.name}.stale-{k}",
           file=sys.stderr)
-
-
-def _continue_on_tracker_response(args, obj, fit, result, progress, binding):
-    """The fit continued from its optimum on the tracked motion less the tracker's error there
-    (`identify.response`), with `obj`'s own noise levels and then, for the likelihood, the
-    balance stage on the corrected motion (balanced on the uncorrected motion, the field's noise
-    level had absorbed the operator's error: 3-4x on the Table 1 setup, against 0.18x after the
-    correction); returns (fit, result, jacobian, record of the first stage)."""
-    import numpy as np
-    import xarray as xr
-
-    from ..identify.balance import balanced_fit
-    from ..identify.optimize import Fit
-    from ..identify.response import tracker_error, with_corrected_data
-    from ..imaging.bundle import open_bundle
-    from ..mesh import read_mesh
-    if args.observation != "tracker":
-        raise ValueError("--tracker-response needs --observation tracker (the operator it corrects)")
-    first = result["best"]
-    params = {k: first["params"][k] for k in fit.names}
-    with open_bundle(args.bundle) as b:
-        err = tracker_error(fit.obj, params, b, xr.load_dataset(args.flow, engine="h5netcdf"),
-                            read_mesh(args.mesh, required=()))
-    corrected = with_corrected_data(obj, err)
-    ckpt = str(Path(args.checkpoint) / "tracker-response") if args.checkpoint else None
-    stage_binding = {**binding, "tracker_response_from": params, "stage": "balanced on the corrected motion"}
-
-    def run(f, x0):
-        return f.least_squares(max_evaluations=args.max_evaluations or 100, x0=x0, jacobian=args.jacobian)
-    if corrected.noise is not None:
-        fit2, result2 = balanced_fit(corrected, params, run, checkpoint=ckpt, progress=progress, binding=stage_binding)
-    else:
-        fit2 = Fit(corrected, params, checkpoint=ckpt, progress=progress, binding=stage_binding)
-        result2 = run(fit2, None)
-    record = dict(first_stage={k: float(v) for k, v in params.items()}, first_stage_phi=float(first["phi"]),
-                  first_stage_solves=len(fit.history), error_rms_m=float(np.sqrt(np.mean(err ** 2))))
-    return fit2, result2, result2.get("jacobian"), record
 
 
 def _optimize(args, obj, start, progress, binding):
