@@ -300,3 +300,22 @@ def test_checkpoint_replays_a_point_one_ulp_away(tmp_path):
     assert near["replayed"] and obj.n_solves == n and near["phi"] == rec["phi"]
     far = again.evaluate(x + 1e-9, jacobian=True)
     assert not far["replayed"] and obj.n_solves == n + 1
+
+
+def test_fit_warns_when_many_forward_solves_failed():
+    """A fit whose forward solves failed at 2 or more and 10 % or more of its solves (those of
+    the merged-pair search included) says so, with the remedy; one failure in 20 does not."""
+    import json
+
+    import xarray as xr
+
+    from liverinv.identify.fitfile import fit_warnings
+
+    def ds(ok, search):
+        return xr.Dataset(dict(at_bound=("param", [False]), rel_sd=("param", [0.01]), determined=("param", [True]),
+                               n_ind=((), 0), history_ok=("evaluation", np.array(ok))),
+                          coords=dict(param=["C1"]), attrs=dict(objective="likelihood", search=json.dumps(search)))
+    assert fit_warnings(ds([True] * 19 + [False], {})) == []
+    w = fit_warnings(ds([True] * 10, {"n_solves": 20, "n_failed": 5}))
+    assert len(w) == 1 and w[0].startswith("5 of 30 forward solves did not converge") and "--quadrature-order 5" in w[0]
+    assert fit_warnings(ds([True] * 8 + [False] * 2, {})) != []

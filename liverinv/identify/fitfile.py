@@ -16,6 +16,7 @@ from .uncertainty import gauss_newton
 __all__ = ["fit_dataset", "fit_warnings"]
 
 INDENTER_EXCESS = 2.0   # warn when the indenter residual's RMS exceeds its noise level this much
+FAILED_SHARE = 0.1      # warn when at least this share of the forward solves (and 2) did not converge
 
 
 def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset:
@@ -108,7 +109,8 @@ def _at_bound(fit, x, tol=1e-3):
 
 def fit_warnings(ds) -> list[str]:
     """What a user must know before trusting a fit: parameters at a bound, parameters the
-    data do not determine, an indenter residual far above its noise level."""
+    data do not determine, an indenter residual far above its noise level, many forward solves
+    that did not converge (the search's on merged frame pairs included)."""
     out = []
     names = [str(p) for p in ds.param.values]
     bound = [n for n, b in zip(names, ds.at_bound.values) if b]
@@ -124,4 +126,11 @@ def fit_warnings(ds) -> list[str]:
         if ratio > INDENTER_EXCESS:
             out.append(f"indenter force residual RMS {float(ds.rms_force):.3g} N is {ratio:.1f} x its noise "
                        f"level {sigma:.3g} N: the law does not explain the force record")
+    search = json.loads(ds.attrs.get("search") or "{}") or {}
+    failed = int(np.count_nonzero(~ds.history_ok.values)) + int(search.get("n_failed", 0))
+    total = int(ds.sizes.get("evaluation", 0)) + int(search.get("n_solves", 0))
+    if failed >= 2 and failed >= FAILED_SHARE * total:
+        out.append(f"{failed} of {total} forward solves did not converge (counted as a penalty, so the search "
+                   "skipped those parameter sets): soft or nearly incompressible laws converge with the "
+                   "14-point rule, --quadrature-order 5")
     return out

@@ -58,6 +58,7 @@ def least_squares_fit(objective, start, *, design_points=0, polish=2, max_evalua
                                 probe_evaluations=probe_evaluations, jacobian=jacobian)
         best = res["best"]
         search.update(frame_pairs_merged=m, n_solves=len(merged.history),
+                      n_failed=sum(not r["ok"] for r in merged.history),
                       solve_time_s=float(sum(r["wall_s"] for r in merged.history)),
                       wall_s=time.perf_counter() - t0, phi=None if best is None else float(best["phi"]),
                       params=None if best is None else {k: float(v) for k, v in best["params"].items()})

@@ -17,7 +17,7 @@ STATUS = ("ok", "flagged", "failed")
 
 
 def fit_flags(ds: xr.Dataset) -> list[str]:
-    """The fit file's own warnings (bound, undetermined, indenter residual), one per line."""
+    """The fit file's own warnings (bound, undetermined, indenter residual, failed solves), one per line."""
     return [w for w in ds.attrs.get("warnings", "").split("\n") if w]
 
 
