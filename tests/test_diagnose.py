@@ -57,6 +57,12 @@ def test_planted_effect_is_found_and_null_data_stay_silent(tiny, truth_law, trut
     # compliance C_BONDED, for the slip direction: the fixed bottom to about 1e-8 in Phi)
     assert d["phi"] == pytest.approx(out["best"]["phi"], rel=1e-6)
     assert d["recommended"] == expected, d["rows"]
+    # the fitted parameters' uncertainty from the diagnosis solve (its linearized sensitivities)
+    # is the fit's own, from the least-squares sensitivities at the optimum
+    from liverinv.identify.uncertainty import gauss_newton
+    own = gauss_newton(out["best"]["jacobian"], out["best"]["residual"], obj.M, fit.log_scale, obj.residual_groups())
+    assert [d["uncertainty"]["rel_sd"][n] for n in fit.names] == pytest.approx(own["rel_sd"], rel=1e-3)
+    assert d["uncertainty"]["sd"]["C1"] == pytest.approx(out["params"]["C1"] * own["rel_sd"][0], rel=1e-3)
     assert set(d["splits"]) == {"region", "depth", "time", "component", "strain_rate", "gradient", "gradient_data"}
     # where the misfit lies (measured: shear relaxation missing, 52 % of Phi_vol in the top
     # strain-rate tercile; bulk relaxation missing, the residual's velocity gradient 48 %

@@ -4,6 +4,7 @@ nothing is recommended; writes DISCOVERY.nc (one step per added effect)."""
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from . import INCLUSIONS_HELP
@@ -94,5 +95,9 @@ def run(args) -> int:
     for s in range(ds.sizes["step"]):
         print(f"step {s}: {ds.law.values[s]}{' + ' + ds.added.values[s] if ds.added.values[s] else ''}: "
               f"Phi_vol {float(ds.phi_vol[s]):.4g}, Phi_ind {float(ds.phi_ind[s]):.4g}")
+        value, sd = json.loads(str(ds.params.values[s])), json.loads(str(ds.param_sd.values[s]))
+        print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
+        for w in filter(None, str(ds.warnings.values[s]).split("\n")):
+            print(f"warning: step {s} ({ds.law.values[s]}): {w}", file=sys.stderr)
     print(f"wrote {args.out}: {ds.attrs['stopped_because']}")
     return 0

@@ -119,6 +119,18 @@ def _with_user_fixed(law, fixed, user_fixed, effects):
     return {**{k: v for k, v in user_fixed.items() if k in free and k not in freed}, **fixed}
 
 
+def step_warnings(fit, params, uncertainty) -> list[str]:
+    """What a user must know before trusting a step's fit, as `liverinv fit` says it
+    (`identify.fitfile.fit_warnings`): parameters at a bound of their search range, parameters
+    the data do not determine (from the step's diagnosis solve, `score.fitted_uncertainty`)."""
+    bound = [n for n, b in zip(fit.names, fit.at_bound(fit.to_x([params[n] for n in fit.names]))) if b]
+    out = [f"ended at a bound: {', '.join(bound)}"] if bound else []
+    loose = [f"{n} (relative SD {uncertainty['rel_sd'][n]:.2g})" for n in fit.names if not uncertainty["determined"][n]]
+    if loose:
+        out.append(f"not determined by the data: {', '.join(loose)}")
+    return out
+
+
 def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fixed=None) -> dict:
     """`objective_for(law, fixed, noise)` builds the objective of a law on the data (noise None:
     the data's own levels); `progress(rec)` is called after every forward solve of the fits;
@@ -165,7 +177,9 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     for step in range(max_steps + 1):
         d = diagnose(obj, params, fit.names, fit.log_scale, rec["phi_vol"])
         steps.append(dict(step=step, law=current_law, fixed=dict(fixed), added=added[-1] if added and step else "",
-                          params={**params, **fixed, **_geometry(held)}, phi=rec["phi"], phi_vol=rec["phi_vol"], phi_ind=rec["phi_ind"],
+                          params={**params, **fixed, **_geometry(held)}, sd=d["uncertainty"]["sd"],
+                          warnings=step_warnings(fit, params, d["uncertainty"]),
+                          phi=rec["phi"], phi_vol=rec["phi_vol"], phi_ind=rec["phi_ind"],
                           n_free=len(fit.names), n_solves=len(fit.history) + n_search, diagnosis=d,
                           n_residuals=int(obj.n_residuals), wall_fit_s=wall_fit, wall_trials_s=0.0))
         if d["recommended"] == "none":

@@ -109,6 +109,12 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
             d_bic=("step", [np.nan] + [n.get("d_bic", np.nan) for n in nxt[:-1]]),
             params=("step", [json.dumps(s["params"]) for s in steps],
                     {"long_name": "every parameter of the model at this step (JSON, SI)"}),
+            param_sd=("step", [json.dumps(s.get("sd", {})) for s in steps],
+                      {"long_name": "standard deviation of each fitted parameter at this step (JSON, SI; "
+                                    "Gauss-Newton, cluster-robust, from the step's diagnosis solve)"}),
+            warnings=("step", ["\n".join(s.get("warnings", [])) for s in steps],
+                      {"long_name": "what to know before trusting this step's fit: parameters at a bound, "
+                                    "parameters the data do not determine (relative SD over 10 %)"}),
             recommended=("step", [s["diagnosis"]["recommended"] for s in steps]),
             tried=("step", [json.dumps(s.get("trials", {})) for s in steps],
                    {"long_name": "candidates refitted after this step's diagnosis, with their Phi and Phi_vol "

@@ -117,6 +117,7 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
     not_tested = {e.name: e.why_not for e in CATALOG.values() if not e.available}
     from .splits import misfit_splits
     return dict(rows=rows, splits=misfit_splits(objective, r, ev.v_fem), recommended=ok[0]["effect"] if ok else "none",
+                uncertainty=fitted_uncertainty(objective, params, fitted, log_scale, J[:, :k], r, groups),
                 eligible=[row["effect"] for row in ok], alpha=alpha, min_drop=min_drop,
                 significant=[row["effect"] for row in rows if row["p_value"] < alpha and row["physical"]],
                 residual_check=float(np.sqrt(np.mean(r ** 2))), phi=float(ev.phi), phi_vol=float(ev.phi_vol),
@@ -128,6 +129,23 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float, e
                      + " mm centred on and 5 mm beside the punch axis, " + ", ".join(
                          f"{1e3 * v:g}" for v in INCLUSION_DEPTHS_M) + " mm deep; p-values Bonferroni over each "
                      "effect's scan")
+
+
+def fitted_uncertainty(objective, params, fitted, log_scale, J, r, groups) -> dict:
+    """The fitted parameters' standard deviations (SI) and relative ones, and whether the data
+    determine them, from the diagnosis solve's own sensitivities `J` (columns: the fitted
+    parameters in the fit's normalization, log10 for log-scaled ones): the Gauss-Newton
+    covariance of the fit file (`identify.uncertainty`), cluster-robust over `groups` for the
+    likelihood, at no extra solve."""
+    from ..identify.uncertainty import gauss_newton
+    unc = gauss_newton(J, r, objective.M, np.asarray(log_scale, bool),
+                       groups=groups if getattr(objective, "noise", None) is not None else None)
+    value = np.array([float(params[n]) for n in fitted])
+    sd_x = np.sqrt(np.clip(np.diag(unc["cov_x"]), 0, None))
+    sd = np.where(log_scale, np.abs(value) * np.log(10.0) * sd_x, sd_x)
+    return dict(sd={n: float(v) for n, v in zip(fitted, sd)},
+                rel_sd={n: float(v) for n, v in zip(fitted, unc["rel_sd"])},
+                determined={n: bool(v) for n, v in zip(fitted, unc["determined"])}, cond=float(unc["cond"]))
 
 
 def refine_inclusion(objective, params, fitted, log_scale, phi_vol, estimate, step=2.5e-3) -> dict:

@@ -72,7 +72,7 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
             rms_force=((), getattr(ev, "rms_force", np.nan), {"units": "N", "long_name": "RMS indenter force error"}),
             n_vol=((), int(np.count_nonzero(fit.obj._w_vol)), {"long_name": "volumetric residuals that carry data"}),
             n_ind=((), int(fit.obj.M), {"long_name": "indenter residuals"}),
-            at_bound=("param", _at_bound(fit, x_best)),
+            at_bound=("param", fit.at_bound(x_best)),
             residual=("residual_index", ev.residual),
             model_time=("drive", ev.model_time, {"units": "s", "long_name": "driving times of the model"}),
             model_depth=("drive", ev.model_depth, {"units": "m", "long_name": "model indenter depth at the optimum"}),
@@ -100,11 +100,6 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
                           **(attrs or {}))
     ds.attrs["warnings"] = "\n".join(fit_warnings(ds))
     return ds
-
-
-def _at_bound(fit, x, tol=1e-3):
-    x = np.asarray(x, float)
-    return (np.abs(x - fit.lo) < tol) | (np.abs(x - fit.hi) < tol)
 
 
 def fit_warnings(ds) -> list[str]:

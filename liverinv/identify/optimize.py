@@ -130,6 +130,11 @@ class Fit:
     def params_of(self, x) -> dict:
         return dict(zip(self.names, map(float, self.to_p(x))))
 
+    def at_bound(self, x, tol=1e-3) -> np.ndarray:
+        """Which parameters of `x` lie within `tol` (in x: log10 or fraction) of a bound."""
+        x = np.asarray(x, float)
+        return (np.abs(x - self.lo) < tol) | (np.abs(x - self.hi) < tol)
+
     # -- evaluations -----------------------------------------------------------------------
     @staticmethod
     def _key(x):
