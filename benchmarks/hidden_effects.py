@@ -65,7 +65,9 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "shear_friction": ("SR", SR, {"contact": {"punch": "bonded"}}, "elastic"),
          "poro_slip": ("PE", dict(E, kappa=1e-8), {"contact": {"support": "sliding"}}, "elastic"),
          "poro_friction": ("PE", dict(E, kappa=1e-8), {"contact": {"punch": "bonded"}}, "elastic"),
-         "shear_bulk": ("SBR", dict(SR, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "elastic")}
+         "shear_bulk": ("SBR", dict(SR, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "elastic"),
+         "shear_poro": ("PSR", dict(SR, kappa=1e-8), {}, "elastic"),
+         "sr_slip": ("SR", SR, {"contact": {"support": "sliding"}}, "SR")}
 
 
 def mesh_file(name, out):

@@ -32,7 +32,7 @@ import numpy as np
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["generate_indentation_mesh", "summarize_mesh", "tet10_volumes", "tri6_areas",
+__all__ = ["generate_indentation_mesh", "refined_model_mesh", "summarize_mesh", "tet10_volumes", "tri6_areas",
            "PRESETS", "PHYSICAL_GROUPS"]
 
 #: Physical group name -> (dimension, tag), the numbering of the benchmark meshes.
@@ -271,6 +271,45 @@ def tri6_areas(points, cells):
         g1, g2 = np.einsum("cai,a->ci", x, dr), np.einsum("cai,a->ci", x, ds)
         area += 0.5 * w * np.linalg.norm(np.cross(g1, g2), axis=1)
     return area
+
+
+def cylinder_of(mesh, tol=0.02):
+    """(R, H, a) of a tet10 mesh of the indentation cylinder (axis z, bottom z = 0, the
+    footprint a disk about the axis), or None with the reason when it is not one within `tol`
+    (relative) of a cylinder."""
+    X = mesh.points
+    r = np.hypot(X[:, 0], X[:, 1])
+    R, H = float(r.max()), float(X[:, 2].max() - X[:, 2].min())
+    side, foot = mesh.nodes("side"), mesh.nodes("footprint")
+    if abs(X[:, 2].min()) > tol * H or np.ptp(r[side]) > tol * R:
+        return None, "not a cylinder about the z axis with its bottom at z = 0"
+    a = float(r[foot].max())
+    if not 0 < a < R or np.ptp(X[foot, 2]) > tol * H:
+        return None, "its footprint is not a flat disk about the axis"
+    return (R, H, a), ""
+
+
+def refined_model_mesh(mesh, out, preset="medium"):
+    """A forward-model mesh for data tracked on `mesh` (a TetMesh of the indentation cylinder):
+    the same cylinder and footprint meshed with the `preset`'s sizes (the fine benchmark mesh's
+    rim and footprint, a coarser far field), scaled by the punch radius over 6 mm; the coarse
+    benchmark mesh is 4.6 % stiffer at the rim than the fine one, medium 0.7 %. Returns (path,
+    note): path None, with the reason in the note, when `mesh` is not such a cylinder or has
+    at least as many elements as the refined mesh would."""
+    dims, why = cylinder_of(mesh)
+    if dims is None:
+        return None, f"the tracking mesh is kept as the model mesh: {why}"
+    R, H, a = (round(v, 6) for v in dims)       # to 1 um: gmsh meshes a 1e-17 change of size otherwise
+    scale = a / 0.006
+    sizes = {k: v * scale for k, v in PRESETS[preset].items()}
+    path = generate_indentation_mesh(out, R=R, H=H, a=a, **sizes)
+    n = summarize_mesh(path)["n_tetra10"]
+    if n <= mesh.n_elements:
+        Path(path).unlink()
+        return None, (f"the tracking mesh is kept as the model mesh: it has {mesh.n_elements} elements, "
+                      f"the {preset} preset {n}")
+    return Path(path), (f"{preset} preset for R {1e3 * R:.3g} mm, H {1e3 * H:.3g} mm, a {1e3 * a:.3g} mm: "
+                        f"{n} elements against the tracking mesh's {mesh.n_elements}")
 
 
 def summarize_mesh(path):

@@ -201,6 +201,34 @@ def test_biphasic_base_is_diagnosed_with_the_boundary_terms(tiny, support, expec
         assert d["rows"][0]["predicted_drop"] > 0.1 and d["rows"][0]["p_value"] < 1e-4
 
 
+def test_final_fit_on_the_same_mesh_stays_at_the_optimum_and_fills_the_last_step(tiny):
+    """discover's final refit (here on the tracking mesh itself, so it must not move): the same
+    parameters and standard deviations as the step it refits, and DISCOVERY.nc's last step
+    carries them while `params_tracking_mesh` keeps the step's own."""
+    import json
+
+    from liverinv.diagnose.discover import discover
+    from liverinv.diagnose.files import discovery_dataset
+    nm = NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {})
+    data = noisy_measurements(tiny.run("elastic", E, ramp_history(4e-3, 2e-3, frames=17, unload=True)), 0)
+
+    def objective_for(lw, fixed, noise):
+        return Objective(tiny, lw, data, fixed=fixed, noise=noise or nm)
+    out = discover(objective_for, "elastic", dict(C1=150.0, C2=6000.0, D1=1e-3), max_steps=0,
+                   final_objective_for=objective_for)
+    step, final = out["steps"][-1], out["final"]
+    assert final["n_solves"] <= 3 and final["warnings"] == []
+    for k in ("C1", "C2", "D1"):
+        assert final["params"][k] == pytest.approx(step["params"][k], rel=2e-3)
+        assert final["sd"][k] == pytest.approx(step["sd"][k], rel=2e-2)
+        assert final["params"][k] == pytest.approx(E[k], abs=3 * final["sd"][k])
+    ds = discovery_dataset(out)
+    assert json.loads(str(ds.params.values[-1])) == pytest.approx(final["params"])
+    assert json.loads(str(ds.params_tracking_mesh.values[-1])) == pytest.approx(step["params"])
+    assert json.loads(str(ds.param_sd.values[-1])) == pytest.approx(final["sd"])
+    assert ds.attrs["final_phi"] == pytest.approx(step["phi"], rel=1e-3)
+
+
 @pytest.mark.slow
 def test_discover_adds_the_planted_effect(tiny):
     """Discover from the elastic law on data with a bonded punch, and with Darcy flow: the

@@ -7,6 +7,7 @@ meshio = pytest.importorskip("meshio")
 pytest.importorskip("gmsh")
 
 from liverinv.meshgen import (  # noqa: E402
+    PRESETS,
     generate_indentation_mesh,
     main,
     summarize_mesh,
@@ -124,3 +125,30 @@ def test_cli_writes_mesh(tmp_path, capsys):
     assert out.exists() and "tetra10" in capsys.readouterr().out
     assert out.read_text().startswith("$MeshFormat\n4.1 0 8")
     assert [p.name for p in tmp_path.iterdir()] == ["cli.msh"]
+
+
+def test_refined_model_mesh_is_the_tracking_cylinder_with_the_medium_preset(tmp_path):
+    """discover's final model mesh: read back from a generated cylinder (R 40 mm, H 25 mm,
+    a 5 mm), the same cylinder and footprint with the medium preset's sizes scaled by a / 6 mm;
+    refused, with the reason, for a mesh as fine and for one that is not such a cylinder."""
+    from dataclasses import replace
+
+    from liverinv.mesh import read_mesh
+    from liverinv.meshgen import cylinder_of, refined_model_mesh
+    tracking = read_mesh(generate_indentation_mesh(tmp_path / "t.msh", R=0.04, H=0.025, a=0.005,
+                                                   **PRESETS["tiny"]))
+    dims, _ = cylinder_of(tracking)
+    assert dims == pytest.approx((0.04, 0.025, 0.005), rel=1e-9)
+    path, note = refined_model_mesh(tracking, tmp_path / "m.msh")
+    s = summarize_mesh(path)
+    assert s["volume"] == pytest.approx(np.pi * 0.04 ** 2 * 0.025, rel=2e-3)
+    assert s["area_footprint"] == pytest.approx(np.pi * 0.005 ** 2, rel=2e-3)
+    assert s["n_tetra10"] > 3 * tracking.n_elements and "medium preset" in note
+    # the same sizes the second time: the same mesh (gmsh meshes a 1e-17 change of a size anew)
+    again, _ = refined_model_mesh(tracking, tmp_path / "m2.msh")
+    assert (tmp_path / "m.msh").read_bytes() == again.read_bytes()
+    fine = read_mesh(path)
+    assert refined_model_mesh(fine, tmp_path / "m3.msh")[0] is None and not (tmp_path / "m3.msh").exists()
+    squashed = replace(tracking, points=tracking.points * [1.0, 0.7, 1.0])
+    none, why = refined_model_mesh(squashed, tmp_path / "m4.msh")
+    assert none is None and "not a cylinder" in why

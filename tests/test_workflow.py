@@ -50,6 +50,7 @@ def write_study(path, **over):
     (dict(fit={"seeds": {"a_b": {"C1": 140.0}}}), "fit/seeds", "does not match"),
     (dict(fit={"methods": ["simplex"]}), "fit/methods/0", "is not one of"),
     (dict(mesh="cylinder.msh"), "mesh", "neither a mesh file"),
+    (dict(discover={"law": "elastic", "final_mesh": "fine.msh"}), "discover/final_mesh", "neither auto"),
 ])
 def test_bad_studies_are_refused_naming_the_file_and_the_key(tmp_path, over, key, words):
     from liverinv.pipeline.spec import load_workflow_study
@@ -139,7 +140,7 @@ def test_reduced_quick_study_end_to_end(tmp_path):
     study = write_study(tmp_path / "mini.yaml", truth=str(truth), fit={
         "laws": ["elastic"], "seeds": {"low": {"C1": 140.0, "C2": 6500.0, "D1": 1.05e-3},
                                        "high": {"C1": 260.0, "C2": 3500.0, "D1": 1.95e-3}}},
-        discover={"law": "elastic", "max_steps": 1})
+        discover={"law": "elastic", "max_steps": 1, "final_mesh": "none"})
     cfg = tmp_path / "config.yaml"
     res = tmp_path / "results"
     cfg.write_text(f"study: mini\nstudies: {{mini: {study}}}\nresults: {res}\n")

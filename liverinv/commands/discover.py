@@ -17,7 +17,11 @@ def register(sub):
     p.add_argument("--flow", type=Path, required=True)
     p.add_argument("--mesh", type=Path, required=True, help="tracking mesh")
     p.add_argument("--law", required=True, help="base law")
-    p.add_argument("--model-mesh", type=Path)
+    p.add_argument("--model-mesh", type=Path, help="mesh of the forward model for every step (default: --mesh)")
+    p.add_argument("--final-mesh", default="auto", metavar="auto|none|MESH",
+                   help="refit the last step's law on this finer model mesh, warm-started, for its parameters "
+                        "(auto, the default: the tracking cylinder meshed with the medium preset, written beside "
+                        "--out, unless --mesh is as fine or --model-mesh is given; none: the tracking mesh's)")
     p.add_argument("--observation", choices=["nodes", "tracker"])
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
     p.add_argument("--start", action="append", default=[], metavar="NAME=VALUE")
@@ -56,20 +60,26 @@ def run(args) -> int:
         raise UserError(str(e)) from None
     inclusions = inclusions_arg(args.inclusions)
 
-    def objective_for(law, fixed, noise):
-        obj, _ = objective_from_files(args.bundle, args.flow, args.mesh, law, fixed, args.model_mesh, "likelihood",
-                                      args.observation, None if noise is None else noise.force_N,
-                                      None if noise is None else noise.depth_m,
-                                      None if noise is None else noise.tracking_m, args.quadrature_order,
-                                      inclusions=inclusions)
-        if noise is not None:
-            obj = obj.with_noise(replace(obj.noise, sources=noise.sources))
-        return obj
+    def objective_on(model_mesh):
+        def objective_for(law, fixed, noise):
+            obj, _ = objective_from_files(args.bundle, args.flow, args.mesh, law, fixed, model_mesh, "likelihood",
+                                          args.observation, None if noise is None else noise.force_N,
+                                          None if noise is None else noise.depth_m,
+                                          None if noise is None else noise.tracking_m, args.quadrature_order,
+                                          inclusions=inclusions)
+            if noise is not None:
+                obj = obj.with_noise(replace(obj.noise, sources=noise.sources))
+            return obj
+        return objective_for
+
+    final_mesh, final_note = final_model_mesh(args)
 
     from tqdm import tqdm
     bar = tqdm(desc=f"discover from {args.law}", unit="solve", disable=None)
     try:
-        out = discover(objective_for, args.law, start, args.max_steps, progress=lambda rec: bar.update(1), fixed=fixed)
+        out = discover(objective_on(args.model_mesh), args.law, start, args.max_steps,
+                       progress=lambda rec: bar.update(1), fixed=fixed,
+                       final_objective_for=objective_on(final_mesh) if final_mesh else None)
     except ValueError as e:
         raise UserError(str(e)) from None
     finally:
@@ -86,8 +96,11 @@ def run(args) -> int:
                                     "less than 1 % of Phi_vol is not kept; a record of more than 61 frames is "
                                     "searched (multi-start, trials) on frame pairs merged pairs // 30 at a time "
                                     "and every reported fit finished on all frames "
-                                    "(liverinv.identify.search.SEARCH_PAIRS)",
-                           inclusions=json.dumps([i.to_json() for i in inclusions]), fixed=json.dumps(fixed))
+                                    "(liverinv.identify.search.SEARCH_PAIRS); the last step's law refitted on a "
+                                    "finer model mesh (--final-mesh auto: the tracking cylinder with the medium "
+                                    "preset), whose parameters are the last step's params",
+                           inclusions=json.dumps([i.to_json() for i in inclusions]), fixed=json.dumps(fixed),
+                           final_model_mesh=str(final_mesh or ""), final_model_mesh_note=final_note)
     write_netcdf(ds, args.out)
     if args.figures:
         from ..diagnose.figures import plot_discovery
@@ -95,9 +108,42 @@ def run(args) -> int:
     for s in range(ds.sizes["step"]):
         print(f"step {s}: {ds.law.values[s]}{' + ' + ds.added.values[s] if ds.added.values[s] else ''}: "
               f"Phi_vol {float(ds.phi_vol[s]):.4g}, Phi_ind {float(ds.phi_ind[s]):.4g}")
-        value, sd = json.loads(str(ds.params.values[s])), json.loads(str(ds.param_sd.values[s]))
+        value, sd = json.loads(str(ds.params_tracking_mesh.values[s])), json.loads(str(ds.param_sd.values[s]))
+        if final_mesh and s == ds.sizes["step"] - 1:
+            sd = {k: float("nan") for k in sd}      # the final fit's, printed below with its values
         print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
         for w in filter(None, str(ds.warnings.values[s]).split("\n")):
             print(f"warning: step {s} ({ds.law.values[s]}): {w}", file=sys.stderr)
+    if final_mesh:
+        print(f"final fit on {final_mesh} ({final_note}): Phi_vol {ds.attrs['final_phi_vol']:.4g} in "
+              f"{ds.attrs['final_n_solves']} solves; the last step's parameters:")
+        value, sd = json.loads(str(ds.params.values[-1])), json.loads(str(ds.param_sd.values[-1]))
+        print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
+    else:
+        print(f"no final fit on a finer mesh: {final_note}")
     print(f"wrote {args.out}: {ds.attrs['stopped_because']}")
     return 0
+
+
+def final_model_mesh(args):
+    """(mesh path or None, what was decided) for the final fit of `--final-mesh`."""
+    from ..cli import UserError
+    from ..mesh import MeshError, read_mesh
+    from ..meshgen import refined_model_mesh
+
+    if args.final_mesh == "none":
+        return None, "--final-mesh none"
+    if args.model_mesh:
+        return None, "every step ran on --model-mesh"
+    if args.final_mesh != "auto":
+        path = Path(args.final_mesh)
+        try:
+            read_mesh(path)
+        except MeshError as e:
+            raise UserError(f"--final-mesh: {e}") from None
+        return path, "given by --final-mesh"
+    try:
+        tracking = read_mesh(args.mesh)
+    except MeshError as e:
+        raise UserError(str(e)) from None
+    return refined_model_mesh(tracking, args.out.with_name(args.out.stem + "_model_mesh.msh"))

@@ -86,8 +86,21 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
 
 
 def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
+    """The DISCOVERY.nc of `discover`'s result. With a final fit on a finer model mesh, the
+    last step's `params`, `param_sd` and `warnings` are that fit's (the tracking mesh's stay in
+    `params_tracking_mesh`); Phi of every step stays on the tracking mesh, one scale."""
     steps = out["steps"]
     nxt = [s.get("next", {}) for s in steps]
+    tracking = [s["params"] for s in steps]
+    final = out.get("final") or {}
+    steps = [dict(s) for s in steps]
+    if final.get("params"):
+        steps[-1].update(params=final["params"], sd=final["sd"])
+    if final:
+        steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + list(final.get("warnings", []))
+        attrs = dict(attrs, final_phi=float(final["phi"]), final_phi_vol=float(final["phi_vol"]),
+                     final_phi_ind=float(final["phi_ind"]), final_n_solves=int(final["n_solves"]),
+                     final_wall_s=float(final["wall_s"]))
     ds = xr.Dataset(
         data_vars=dict(
             added=("step", [s["added"] for s in steps], {"long_name": "effect added at this step"}),
@@ -109,6 +122,10 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
             d_bic=("step", [np.nan] + [n.get("d_bic", np.nan) for n in nxt[:-1]]),
             params=("step", [json.dumps(s["params"]) for s in steps],
                     {"long_name": "every parameter of the model at this step (JSON, SI)"}),
+            params_tracking_mesh=("step", [json.dumps(p) for p in tracking],
+                                  {"long_name": "the parameters fitted on the tracking mesh (JSON, SI); the last "
+                                                "step's `params` are the final fit's on the finer model mesh "
+                                                "where one ran (attribute final_model_mesh)"}),
             param_sd=("step", [json.dumps(s.get("sd", {})) for s in steps],
                       {"long_name": "standard deviation of each fitted parameter at this step (JSON, SI; "
                                     "Gauss-Newton, cluster-robust, from the step's diagnosis solve)"}),

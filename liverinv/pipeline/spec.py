@@ -215,6 +215,9 @@ def validate_workflow_study(spec, path) -> dict:
         if value is not None and value not in MESH_PRESETS and not (base / value).is_file():
             _fail(path, key, f"{value}: neither a mesh file (relative to the study) nor a preset "
                              f"({', '.join(MESH_PRESETS)})")
+    final = spec.get("discover", {}).get("final_mesh", "auto")
+    if final not in ("auto", "none") and not (base / final).is_file():
+        _fail(path, "discover/final_mesh", f"{final}: neither auto, none nor a mesh file (relative to the study)")
     return spec
 
 

@@ -142,7 +142,9 @@ def study_outputs(study):
 
 def discover_options(wildcards, input):
     s = STUDY[wildcards.study]
-    args = ["--law", s.discover["law"], "--max-steps", str(s.discover.get("max_steps", 3))]
+    args = ["--law", s.discover["law"], "--max-steps", str(s.discover.get("max_steps", 3)),
+            "--final-mesh", str(s.resolve(s.discover["final_mesh"]) if s.discover.get("final_mesh", "auto")
+                                not in ("auto", "none") else s.discover.get("final_mesh", "auto"))]
     if "model_mesh" in input.keys():
         args += ["--model-mesh", input.model_mesh]
     return " ".join(args)
