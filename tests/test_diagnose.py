@@ -228,6 +228,14 @@ def test_final_fit_on_the_same_mesh_stays_at_the_optimum_and_fills_the_last_step
     assert json.loads(str(ds.param_sd.values[-1])) == pytest.approx(final["sd"])
     assert ds.attrs["final_phi"] == pytest.approx(step["phi"], rel=1e-3)
 
+    def failing(lw, fixed, noise):
+        raise ValueError("no such mesh")
+    kept = discover(objective_for, "elastic", dict(C1=150.0, C2=6000.0, D1=1e-3), max_steps=0,
+                    final_objective_for=failing)
+    ds = discovery_dataset(kept)               # the discovery is kept, the failure said
+    assert json.loads(str(ds.params.values[-1])) == pytest.approx(step["params"])
+    assert "final fit on the finer model mesh failed (no such mesh)" in str(ds.warnings.values[-1])
+
 
 @pytest.mark.slow
 def test_discover_adds_the_planted_effect(tiny):
