@@ -228,6 +228,17 @@ def test_final_fit_on_the_same_mesh_stays_at_the_optimum_and_fills_the_last_step
     assert json.loads(str(ds.param_sd.values[-1])) == pytest.approx(final["sd"])
     assert ds.attrs["final_phi"] == pytest.approx(step["phi"], rel=1e-3)
 
+    assert ds.attrs["final_kept"] == 1
+    # a final model that explains the data worse (here: half the noise levels, Phi about 4x) is
+    # not taken: the tracking mesh's parameters stay, and the reason is given
+    half = NoiseModel(SIGMA_F / 2, SIGMA_D / 2, SIGMA_TRACK / 2, {})
+    worse = discover(objective_for, "elastic", dict(C1=150.0, C2=6000.0, D1=1e-3), max_steps=0,
+                     final_objective_for=lambda lw, fixed, noise: Objective(tiny, lw, data, fixed=fixed, noise=half))
+    ds = discovery_dataset(worse)
+    assert ds.attrs["final_kept"] == 0 and ds.attrs["final_phi"] > 3 * float(ds.phi[-1])
+    assert json.loads(str(ds.params.values[-1])) == pytest.approx(step["params"])
+    assert "explains the data worse" in str(ds.warnings.values[-1])
+
     def failing(lw, fixed, noise):
         raise ValueError("no such mesh")
     kept = discover(objective_for, "elastic", dict(C1=150.0, C2=6000.0, D1=1e-3), max_steps=0,

@@ -115,8 +115,9 @@ def run(args) -> int:
         for w in filter(None, str(ds.warnings.values[s]).split("\n")):
             print(f"warning: step {s} ({ds.law.values[s]}): {w}", file=sys.stderr)
     if final_mesh:
-        print(f"final fit on {final_mesh} ({final_note}): Phi_vol {ds.attrs['final_phi_vol']:.4g} in "
-              f"{ds.attrs['final_n_solves']} solves; the last step's parameters:")
+        print(f"final fit on {final_mesh} ({final_note}): Phi {ds.attrs['final_phi']:.5g} (tracking mesh "
+              f"{float(ds.phi[-1]):.5g}) in {ds.attrs['final_n_solves']} solves; "
+              + ("its parameters:" if ds.attrs["final_kept"] else "not kept, the tracking mesh's parameters:"))
         value, sd = json.loads(str(ds.params.values[-1])), json.loads(str(ds.param_sd.values[-1]))
         print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
     else:

@@ -86,19 +86,23 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
 
 
 def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
-    """The DISCOVERY.nc of `discover`'s result. With a final fit on a finer model mesh, the
-    last step's `params`, `param_sd` and `warnings` are that fit's (the tracking mesh's stay in
-    `params_tracking_mesh`); Phi of every step stays on the tracking mesh, one scale."""
+    """The DISCOVERY.nc of `discover`'s result. With a final fit on a finer model mesh that
+    explains the data at least as well (attribute `final_kept`), the last step's `params` and
+    `param_sd` are that fit's (the tracking mesh's stay in `params_tracking_mesh`; the final
+    fit's are also in the attribute `final_params`); Phi of every step stays on the tracking
+    mesh, one scale."""
     steps = out["steps"]
     nxt = [s.get("next", {}) for s in steps]
     tracking = [s["params"] for s in steps]
     final = out.get("final") or {}
     steps = [dict(s) for s in steps]
-    if final.get("params"):
+    if final.get("params") and final.get("kept", True):
         steps[-1].update(params=final["params"], sd=final["sd"])
     if final:
         steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + list(final.get("warnings", []))
-        attrs = dict(attrs, final_phi=float(final["phi"]), final_phi_vol=float(final["phi_vol"]),
+        attrs = dict(attrs, final_kept=int(bool(final.get("params")) and final.get("kept", True)),
+                     final_params=json.dumps(final.get("params", {})),
+                     final_phi=float(final["phi"]), final_phi_vol=float(final["phi_vol"]),
                      final_phi_ind=float(final["phi_ind"]), final_n_solves=int(final["n_solves"]),
                      final_wall_s=float(final["wall_s"]))
     ds = xr.Dataset(
