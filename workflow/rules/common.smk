@@ -142,9 +142,9 @@ def study_outputs(study):
 
 def discover_options(wildcards, input):
     s = STUDY[wildcards.study]
+    final = s.discover.get("final_mesh", "auto")
     args = ["--law", s.discover["law"], "--max-steps", str(s.discover.get("max_steps", 3)),
-            "--final-mesh", str(s.resolve(s.discover["final_mesh"]) if s.discover.get("final_mesh", "auto")
-                                not in ("auto", "none") else s.discover.get("final_mesh", "auto"))]
+            "--final-mesh", final if final in ("auto", "none") else str(s.resolve(final))]
     if "model_mesh" in input.keys():
         args += ["--model-mesh", input.model_mesh]
     return " ".join(args)
