@@ -163,6 +163,11 @@ def test_observation_operator_predicts_the_window_average():
     assert rms(at_nodes) > 0.02
     assert rms(observed) < 0.004
     assert rms(observed) < 0.15 * rms(at_nodes)
+    # the rows of some nodes only (the sensitivities of a fit): the same numbers
+    rng = np.random.default_rng(0)
+    some = np.flatnonzero(m)[::3]
+    u = rng.normal(size=(2, 3) + Pf.shape)
+    assert np.allclose(O.at_nodes(u, some), O(u)[..., some, :], rtol=0, atol=1e-12 * np.abs(O(u)).max())
 
 
 def test_default_refinement_follows_a_reversal_without_lag(scene):

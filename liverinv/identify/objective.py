@@ -168,6 +168,8 @@ class Objective:
             raise ValueError("frame pairs need t1 > t0")
         self.v_of = data.u_of / dt_f[:, None, None]
         self._w_vol = np.sqrt(data.c_of / (self.N * self.K))
+        # the nodes whose velocities are weighted in some frame (the rest have no residual)
+        self._weighted_nodes = np.flatnonzero(np.any(np.asarray(data.c_of) != 0, axis=(0, 2)))
         # the model is driven at the frame times (and t = 0), with the measured force
         # interpolated there; indenter velocities are compared over the same intervals
         t = np.unique(np.concatenate([[0.0], data.t0, data.t1]))
@@ -285,10 +287,13 @@ class Objective:
                  len(P), int((probe.outside > 0).sum()), float((probe.outside * h).max()))
         return probe
 
-    def at_data_nodes(self, u):
+    def at_data_nodes(self, u, nodes=None):
         """Model nodal field (..., n_model, 3) at the tracked nodes (..., N, 3), through the
-        observation operator if there is one."""
-        return u if self.to_data is None else self.to_data(u)
+        observation operator if there is one; at the tracked `nodes` only if given."""
+        if nodes is not None and hasattr(self.to_data, "at_nodes"):
+            return self.to_data.at_nodes(u, nodes)
+        out = u if self.to_data is None else self.to_data(u)
+        return out if nodes is None else out[..., nodes, :]
 
     def model_motion(self, t, u):
         """Frame-pair nodal velocities (K, ..., N, 3) of a model history u(t) (n_t, ..., N, 3)."""
@@ -348,8 +353,11 @@ class Objective:
         jac = None
         if sens is not None:
             jac = np.empty((self.n_residuals, sens.k))
-            dv = self.model_motion(self.t_drive, self.at_data_nodes(h.du))[0]      # (K, k, N, 3)
-            jac[: r_vol.size] = -(self._w_vol[:, None] * dv).transpose(0, 2, 3, 1).reshape(r_vol.size, sens.k)
+            nodes = self._weighted_nodes          # the other nodes' rows are 0
+            dv = self.model_motion(self.t_drive, self.at_data_nodes(h.du, nodes))[0]      # (K, k, n_w, 3)
+            jv = np.zeros(self.v_of.shape + (sens.k,))
+            jv[:, nodes] = -self._w_vol[:, nodes, :, None] * dv.transpose(0, 2, 3, 1)
+            jac[: r_vol.size] = jv.reshape(r_vol.size, sens.k)
             for i in range(sens.k):
                 jac[r_vol.size:, i] = self._indenter_residual(h.ddepth[:, i], h.dforce[:, i], derivative=True)
         return Evaluation(dict(params), True, phi_vol + phi_ind, phi_vol, phi_ind, rms_depth, rms_axial,

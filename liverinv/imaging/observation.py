@@ -72,6 +72,7 @@ class TrackingObservation:
         size = matrix.shape[0] * matrix.shape[1]
         self._dense = (self.matrix.toarray() if self.matrix.nnz >= self.DENSE_FROM * size
                        and 8 * size <= self.DENSE_MAX_BYTES else None)
+        self._rows = None      # (key, model dofs seen, operator) of the last `at_nodes` node set
 
     @classmethod
     def build(cls, volume0, grid, track_points, track_cells, model_points, model_cells,
@@ -128,6 +129,26 @@ class TrackingObservation:
         flat = u.reshape(-1, 3 * self.n_model)                    # (k, 3 n_model)
         out = flat @ self._dense.T if self._dense is not None else (self.matrix @ flat.T).T
         return out.reshape(lead + (self.N, 3))
+
+    def at_nodes(self, u: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+        """`self(u)[..., nodes, :]` from the operator's rows of `nodes` and the model dofs they
+        see only (the sub-operator is kept for the next call with the same nodes). The
+        sensitivities of a fit need the tracked nodes with confidence only: on the coarse
+        benchmark data 60 % of the nodes seeing 75 % of the model dofs, 0.45 of the product."""
+        u = np.asarray(u, float)
+        nodes = np.asarray(nodes, np.intp)
+        key = nodes.tobytes()
+        if self._rows is None or self._rows[0] != key:
+            M = self.matrix[(3 * nodes[:, None] + np.arange(3)).ravel()]
+            seen = np.unique(M.indices)
+            M = M[:, seen]
+            size = M.shape[0] * M.shape[1]
+            self._rows = (key, seen, M.toarray() if self._dense is not None and 8 * size <= self.DENSE_MAX_BYTES
+                          else M.tocsr())
+        _, seen, M = self._rows
+        flat = u.reshape(-1, 3 * self.n_model)[:, seen]
+        out = flat @ M.T if isinstance(M, np.ndarray) else (M @ flat.T).T
+        return out.reshape(u.shape[:-2] + (len(nodes), 3))
 
 
 def tracking_observation(bundle, flow, tracking_mesh, model_mesh):
