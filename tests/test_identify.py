@@ -218,6 +218,26 @@ def test_long_record_is_searched_on_merged_frame_pairs_then_fitted_on_all(proble
         least_squares_fit(obj, START, design_points=4, search_pairs=-1)
 
 
+def test_a_fit_from_another_start_reads_the_shared_design_stage_back(problem, tmp_path):
+    """The design points (and the polish of the best) do not depend on the start: a fit from
+    a second start reads them from the first fit's checkpoint and ends where it would alone;
+    a checkpoint of other inputs is not read."""
+    from liverinv.identify.search import least_squares_fit
+    fm, meas = problem
+    obj = Objective(fm, "elastic", meas)
+    other_start = dict(C1=120.0, C2=8000.0, D1=8e-4)
+    kw = dict(design_points=4, polish=1, probe_evaluations=4, search_pairs=2, binding={"data": "a"})
+    least_squares_fit(obj, START, checkpoint=tmp_path / "first", **kw)
+    alone, ref = least_squares_fit(obj, other_start, **kw)
+    fit, out = least_squares_fit(obj, other_start, checkpoint=tmp_path / "second", shared=[tmp_path / "first"], **kw)
+    assert out["search"]["n_shared"] >= 4                   # at least the design points
+    assert out["params"] == ref["params"]
+    assert len(fit.history) == len(alone.history)           # the same path, fewer solves
+    _, foreign = least_squares_fit(obj, other_start, shared=[tmp_path / "first"],
+                                   **{**kw, "binding": {"data": "b"}})
+    assert foreign["search"]["n_shared"] == 0 and foreign["params"] == ref["params"]
+
+
 class ScaledBasins(TwoBasins):
     """TwoBasins with a constant residual (the optimum keeps Phi > 0) times `scale`: the
     paper's objective is in m^2/s^2, with Phi about 1e-9 at its optimum."""

@@ -77,6 +77,10 @@ def test_fit_jobs_and_their_options_follow_the_study(tmp_path):
     nm = s.fit_arguments(next(j for j in s.fit_jobs() if j.tag == "SR_a_nelder-mead"))
     assert "--design-points" not in nm and "--tracker-response" not in nm
     assert s.truth_params() == {"C1": 200.0, "C2": 5000.0, "D1": 1.5e-3}
+    # the design stage is solved by the first seed's fit and read back by the others
+    shared = {j.tag: s.shared_with(j) for j in s.fit_jobs()}
+    assert shared["SR_b_least-squares"].tag == "SR_a_least-squares"
+    assert shared["SR_a_least-squares"] is None and shared["SR_b_nelder-mead"] is None
     s = load_workflow_study(write_study(tmp_path / "r.yaml", fit={
         "laws": ["elastic"], "seeds": {"a": {"C1": 140.0}}, "observation": "tracker", "tracker_response": True}))
     assert "--tracker-response" in s.fit_arguments(s.fit_jobs()[0])

@@ -69,6 +69,11 @@ def register(sub):
     p.add_argument("--quadrature-order", type=int, choices=[2, 3, 4, 5], default=2)
     p.add_argument("--inclusions", metavar="JSON|FILE", help=INCLUSIONS_HELP)
     p.add_argument("--out", required=True, help="fit file (netCDF)")
+    p.add_argument("--shared-checkpoint", action="append", default=[], metavar="DIR",
+                   help="checkpoint folder of a fit of the same data, law and options from another start "
+                        "(repeatable): its solves are read back instead of solved again, e.g. the design stage "
+                        "of --design-points, which every start shares; a folder of other inputs is ignored "
+                        "with a warning, and none is written")
     p.add_argument("--fresh-checkpoint", action="store_true",
                    help="if --checkpoint holds solves of other inputs, set it aside (renamed *.stale-N) and start anew")
     p.add_argument("--indenter-only", action="store_true",
@@ -199,11 +204,16 @@ def _run(args) -> int:
                                                    indenter_only=int(args.indenter_only),
                                                    inclusions=json.dumps([i.to_json() for i in obj.forward.inclusions]),
                                                    tracker_response=json.dumps(response),
+                                                   shared_solves=int(result.get("n_shared", 0))
+                                                   + int((result.get("search") or {}).get("n_shared", 0)),
                                                    model_mesh_sha256=file_sha256(args.model_mesh or args.mesh)))
     write_netcdf(ds, args.out)
     best_p = ", ".join(f"{k}={v:.4g}" for k, v in zip(ds.param.values, ds.best.values))
+    n_total = int(ds.attrs["n_solves"]) + int(ds.attrs["search_solves"])
     print(f"wrote {args.out}: {best_p}; Phi = {float(ds.phi):.4g} (vol {float(ds.phi_vol):.4g}, "
-          f"ind {float(ds.phi_ind):.4g}) after {ds.attrs['n_solves']} forward solves")
+          f"ind {float(ds.phi_ind):.4g}) after {n_total} forward solves"
+          + (f" ({ds.attrs['search_solves']} of the search on merged frame pairs)" if ds.attrs["search_solves"] else "")
+          + (f", {ds.attrs['shared_solves']} of them read from a shared checkpoint" if ds.attrs["shared_solves"] else ""))
     for line in filter(None, ds.attrs["warnings"].split("\n")):
         print(f"warning: {line}", file=sys.stderr)
     return 0
@@ -231,7 +241,8 @@ def _set_aside_if_stale(ckpt: Path, binding):
 def _optimize(args, obj, start, progress, binding):
     from ..identify.optimize import Fit
     if args.method == "nelder-mead":
-        fit = Fit(obj, start, checkpoint=args.checkpoint, progress=progress, binding=binding)
+        fit = Fit(obj, start, checkpoint=args.checkpoint, progress=progress, binding=binding,
+                  shared=args.shared_checkpoint)
         result = fit.nelder_mead(max_evaluations=args.max_evaluations or 400)
         jac = None
     else:
@@ -240,6 +251,6 @@ def _optimize(args, obj, start, progress, binding):
                                         max_evaluations=args.max_evaluations or 100,
                                         probe_evaluations=args.probe_evaluations, jacobian=args.jacobian,
                                         search_pairs=args.search_pairs, checkpoint=args.checkpoint,
-                                        progress=progress, binding=binding)
+                                        progress=progress, binding=binding, shared=args.shared_checkpoint)
         jac = result.get("jacobian")
     return fit, result, jac

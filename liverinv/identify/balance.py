@@ -26,13 +26,14 @@ __all__ = ["balanced_fit"]
 log = logging.getLogger(__name__)
 
 
-def balanced_fit(objective, start, run, checkpoint=None, progress=None, tol=0.25, binding=None):
+def balanced_fit(objective, start, run, checkpoint=None, progress=None, tol=0.25, binding=None, shared=()):
     """`run(fit, x0)` (an optimizer of `Fit`, from the start when x0 is None) with the
     objective's noise levels, then once more from its optimum with the balanced levels.
 
     Returns (fit, result) of the last stage; `result["stages"]` lists the noise levels and
-    solve counts of each stage."""
-    fit = Fit(objective, start, checkpoint=checkpoint, progress=progress, binding=binding)
+    solve counts of each stage. `shared` checkpoints (fits from other starts) serve the first
+    stage only: the balanced levels depend on the start."""
+    fit = Fit(objective, start, checkpoint=checkpoint, progress=progress, binding=binding, shared=shared)
     result = run(fit, None)
     if objective.noise is None or result["best"] is None:
         return fit, result

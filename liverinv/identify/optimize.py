@@ -14,7 +14,9 @@ solves already in the checkpoint are read back instead of recomputed, so the pat
 result are those of an uninterrupted run. `binding.json` records what the solves depend on
 (hashes of the data and meshes, the law, the objective's options); a resume with anything
 different is refused (`CheckpointMismatch`). A torn last line (a kill while writing) is dropped
-and that solve done again.
+and that solve done again. `shared` folders are the checkpoints of fits of the same inputs from
+other starts: their solves of this stage are read back too (never written), which spares a
+multi-start fit the design stage another start has already solved.
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ class Fit:
     new checkpoint and must match an existing one."""
 
     def __init__(self, objective: Objective, start: dict, names=None, checkpoint=None,
-                 progress=None, tag="", binding=None):
+                 progress=None, tag="", binding=None, shared=()):
         self.obj = objective
         law = get_law(objective.law)
         self.names = list(names or [n for n in law.free if n not in objective.fixed])
@@ -88,6 +90,8 @@ class Fit:
             self.ckpt.mkdir(parents=True, exist_ok=True)
             self._bind(binding)
             self._load_checkpoint()
+        for folder in shared:
+            self._load_shared(Path(folder), binding)
 
     def _bind(self, binding):
         if binding is None:
@@ -171,14 +175,47 @@ class Fit:
                 tmp.replace(f)
         for rec in records:
             self._n_records = max(self._n_records, rec["n"] + 1)
-            if rec.get("tag", "") != self.tag:     # another stage's solve
+        n = self._cache_records(self.ckpt, records)
+        log.info("checkpoint %s: %d solves to replay", self.ckpt, n)
+
+    def _cache_records(self, folder, records, shared=False) -> int:
+        """Put this stage's records (tag) of a checkpoint folder, with their residuals and
+        Jacobians, in the replay cache; a key already there is kept. Returns how many were added."""
+        n = 0
+        for rec in records:
+            key = tuple(rec["key"])
+            if rec.get("tag", "") != self.tag or key in self._cache:   # another stage's solve
                 continue
-            res = self.ckpt / f"residual_{rec['n']}.npy"
+            res = folder / f"residual_{rec['n']}.npy"
             rec["residual"] = np.load(res) if res.exists() else None
-            jac = self.ckpt / f"jacobian_{rec['n']}.npy"
+            jac = folder / f"jacobian_{rec['n']}.npy"
             rec["jacobian"] = np.load(jac) if jac.exists() else None
-            self._cache[tuple(rec["key"])] = rec
-        log.info("checkpoint %s: %d solves to replay", self.ckpt, len(self._cache))
+            if shared:
+                rec["shared_from"] = str(folder)
+            self._cache[key] = rec
+            n += 1
+        return n
+
+    def _load_shared(self, folder: Path, binding):
+        """Solves of another fit of the same inputs from another start (its checkpoint folder),
+        read back instead of solved again: a multi-start fit's design points and their polish do
+        not depend on the start. Only a folder bound to the same inputs is read (else a warning);
+        it is never written."""
+        try:
+            theirs = json.loads((folder / "binding.json").read_text())
+        except (OSError, ValueError):
+            theirs = None
+        if binding is None or theirs != json.loads(json.dumps(binding)):
+            log.warning("shared checkpoint %s: not written for the same inputs; its solves are not used", folder)
+            return
+        records = []
+        for line in (folder / "evaluations.jsonl").read_text().splitlines() if (folder / "evaluations.jsonl").exists() else []:
+            try:
+                records.append(json.loads(line))
+            except json.JSONDecodeError:      # a torn last line: that solve is simply not shared
+                break
+        n = self._cache_records(folder, records, shared=True)
+        log.info("shared checkpoint %s: %d solves to read back", folder, n)
 
     def evaluate(self, x, purpose="step", jacobian=False) -> dict:
         """One forward solve at normalized x (or its replay from the checkpoint); with
@@ -402,4 +439,5 @@ class Fit:
         best = min((r for r in self.history if r["ok"]), key=lambda r: r["phi"], default=None)
         return dict(method=method, message=str(message), x=np.asarray(x), params=self.params_of(x),
                     best=best, n_solves=len(self.history),
-                    n_replayed=sum(1 for r in self.history if r.get("replayed")), n_calls=self.n_calls)
+                    n_replayed=sum(1 for r in self.history if r.get("replayed")),
+                    n_shared=sum(1 for r in self.history if r.get("shared_from")), n_calls=self.n_calls)

@@ -32,11 +32,13 @@ def merge_factor(objective, search_pairs=SEARCH_PAIRS) -> int:
 
 def least_squares_fit(objective, start, *, design_points=0, polish=2, max_evaluations=100,
                       probe_evaluations=10, jacobian="sensitivity", search_pairs=SEARCH_PAIRS, balance=True,
-                      checkpoint=None, progress=None, binding=None):
+                      checkpoint=None, progress=None, binding=None, shared=()):
     """Bounded least squares of `objective.law` from `start`: with the multi-start stage when
     `design_points` > 0 (on merged frame pairs for a long record, see the module doc), then
-    balanced when the objective is a likelihood and `balance`. Returns (fit, result) of the
-    last stage; ``result["search"]`` describes a merged search (None without one)."""
+    balanced when the objective is a likelihood and `balance`. `shared`: checkpoint folders of
+    fits of the same inputs from other starts, whose solves are read back (`Fit`). Returns
+    (fit, result) of the last stage; ``result["search"]`` describes a merged search (None
+    without one)."""
     search_pairs = SEARCH_PAIRS if search_pairs is None else search_pairs
     if search_pairs < 0:
         raise ValueError(f"search_pairs must be 0 (no merged search) or positive, not {search_pairs}")
@@ -53,11 +55,12 @@ def least_squares_fit(objective, start, *, design_points=0, polish=2, max_evalua
                                   probe_evaluations=probe_evaluations, jacobian=jacobian)
         t0 = time.perf_counter()
         merged = Fit(objective.every(m), fit.start, checkpoint=checkpoint, progress=progress,
-                     tag=f"merged-{m}", binding=binding)
+                     tag=f"merged-{m}", binding=binding, shared=shared)
         res = merged.multistart(design_points, polish, max_evaluations=max_evaluations,
                                 probe_evaluations=probe_evaluations, jacobian=jacobian)
         best = res["best"]
         search.update(frame_pairs_merged=m, n_solves=len(merged.history),
+                      n_shared=sum(1 for r in merged.history if r.get("shared_from")),
                       n_failed=sum(not r["ok"] for r in merged.history),
                       solve_time_s=float(sum(r["wall_s"] for r in merged.history)),
                       wall_s=time.perf_counter() - t0, phi=None if best is None else float(best["phi"]),
@@ -71,9 +74,10 @@ def least_squares_fit(objective, start, *, design_points=0, polish=2, max_evalua
         return out
 
     if balance and objective.noise is not None:
-        fit, result = balanced_fit(objective, start, run, checkpoint=checkpoint, progress=progress, binding=binding)
+        fit, result = balanced_fit(objective, start, run, checkpoint=checkpoint, progress=progress, binding=binding,
+                                   shared=shared)
     else:
-        fit = Fit(objective, start, checkpoint=checkpoint, progress=progress, binding=binding)
+        fit = Fit(objective, start, checkpoint=checkpoint, progress=progress, binding=binding, shared=shared)
         result = run(fit, None)
     result["search"] = search or None
     return fit, result

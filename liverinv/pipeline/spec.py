@@ -136,6 +136,17 @@ class WorkflowStudy:
             args += ["--max-evaluations", str(fit["nelder_mead_evaluations"])]
         return args
 
+    def shared_with(self, job: FitJob) -> FitJob | None:
+        """The fit whose checkpoint `job` reads solves from: a least-squares fit with a design
+        stage screens the same design points from every start and polishes the same best ones,
+        so every seed after the first of its law and method reads them back from the first
+        seed's checkpoint (its job waits for that fit) instead of solving them again."""
+        fit = self.spec.get("fit", {})
+        if job.method != "least-squares" or int(fit.get("design_points", 0)) <= 0:
+            return None
+        first = FitJob(job.law, self.seeds[0], job.method)
+        return None if first == job else first
+
     @property
     def agree_tol(self) -> float:
         return float(self.spec.get("fit", {}).get("agree_tol", 0.02))

@@ -108,12 +108,29 @@ def fit_inputs(wildcards):
     return out
 
 
-def fit_options(wildcards, input):
+def fit_job_inputs(wildcards):
+    """`fit_inputs`, and the first seed's fit when this one reads its design stage."""
+    out = fit_inputs(wildcards)
+    first = STUDY[wildcards.study].shared_with(_job(wildcards))
+    if first:
+        out["shared"] = f"{RESULTS}/{wildcards.study}/fits/{first.tag}.nc"
+    return out
+
+
+def _job(wildcards):
     from liverinv.pipeline.spec import FitJob
+    return FitJob(wildcards.law, wildcards.seed, wildcards.method)
+
+
+def fit_options(wildcards, input):
     s = STUDY[wildcards.study]
-    args = s.fit_arguments(FitJob(wildcards.law, wildcards.seed, wildcards.method))
+    job = _job(wildcards)
+    args = s.fit_arguments(job)
     if "model_mesh" in input.keys():
         args += ["--model-mesh", input.model_mesh]
+    first = s.shared_with(job)
+    if first:
+        args += ["--shared-checkpoint", f"{RESULTS}/{wildcards.study}/checkpoints/{first.tag}"]
     return " ".join(f"'{a}'" for a in args)
 
 

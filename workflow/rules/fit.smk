@@ -3,7 +3,7 @@
 
 rule fit:
     input:
-        unpack(fit_inputs),
+        unpack(fit_job_inputs),
     output:
         f"{RESULTS}/{{study}}/fits/{{law}}_{{seed}}_{{method}}.nc",
     params:
