@@ -81,6 +81,10 @@ def test_fit_jobs_and_their_options_follow_the_study(tmp_path):
     shared = {j.tag: s.shared_with(j) for j in s.fit_jobs()}
     assert shared["SR_b_least-squares"].tag == "SR_a_least-squares"
     assert shared["SR_a_least-squares"] is None and shared["SR_b_nelder-mead"] is None
+    # the first seed goes first (the others wait for it), then the other multi-start fits
+    order = {j.tag: s.fit_priority(j) for j in s.fit_jobs()}
+    assert order["SR_a_least-squares"] == 2 and order["SR_b_least-squares"] == 1
+    assert order["SR_a_nelder-mead"] == 0
     s = load_workflow_study(write_study(tmp_path / "r.yaml", fit={
         "laws": ["elastic"], "seeds": {"a": {"C1": 140.0}}, "observation": "tracker", "tracker_response": True}))
     assert "--tracker-response" in s.fit_arguments(s.fit_jobs()[0])

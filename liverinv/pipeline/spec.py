@@ -147,6 +147,16 @@ class WorkflowStudy:
         first = FitJob(job.law, self.seeds[0], job.method)
         return None if first == job else first
 
+    def fit_priority(self, job: FitJob) -> int:
+        """The workflow's order among ready fits, longest chains first: 2 for a fit whose
+        checkpoint later seeds wait for, 1 for another fit with a design stage (the longest),
+        0 otherwise. (Measured in paper-table1..3 from nothing: Snakemake started Table 2's first
+        seed after four of Table 3's fits, and its two other seeds waited for it at the end.)"""
+        if self.shared_with(job) is None and any(self.shared_with(j) == job for j in self.fit_jobs()):
+            return 2
+        design = job.method == "least-squares" and int(self.spec.get("fit", {}).get("design_points", 0)) > 0
+        return 1 if design else 0
+
     @property
     def agree_tol(self) -> float:
         return float(self.spec.get("fit", {}).get("agree_tol", 0.02))

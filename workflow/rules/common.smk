@@ -122,6 +122,10 @@ def _job(wildcards):
     return FitJob(wildcards.law, wildcards.seed, wildcards.method)
 
 
+def fit_priority(wildcards):
+    return STUDY[wildcards.study].fit_priority(_job(wildcards))
+
+
 def fit_options(wildcards, input):
     s = STUDY[wildcards.study]
     job = _job(wildcards)

@@ -15,6 +15,7 @@ rule fit:
         f"{RESULTS}/benchmarks/{{study}}/fit_{{law}}_{{seed}}_{{method}}.tsv"
     conda:
         "../envs/liverinv.yaml"
+    priority: fit_priority
     threads: 1
     resources:
         mem_mb=4000,
