@@ -10,6 +10,7 @@ rule mesh:
         f"{RESULTS}/benchmarks/mesh_{{preset}}.tsv"
     conda:
         "../envs/liverinv.yaml"
+    priority: DATA_PRIORITY
     threads: 1
     resources:
         mem_mb=1000,
@@ -31,6 +32,7 @@ rule truth:
         f"{RESULTS}/benchmarks/truth_{{dataset}}.tsv"
     conda:
         "../envs/liverinv.yaml"
+    priority: DATA_PRIORITY
     threads: 2
     resources:
         mem_mb=4000,
@@ -53,6 +55,7 @@ rule render:
         f"{RESULTS}/benchmarks/render_{{dataset}}.tsv"
     conda:
         "../envs/liverinv.yaml"
+    priority: DATA_PRIORITY
     threads: 1
     resources:
         mem_mb=4000,
@@ -76,6 +79,7 @@ rule track:
         f"{RESULTS}/benchmarks/track_{{dataset}}_{{tracking}}.tsv"
     conda:
         "../envs/liverinv.yaml"
+    priority: DATA_PRIORITY
     threads: 1
     resources:
         mem_mb=4000,
