@@ -236,6 +236,8 @@ def test_a_fit_from_another_start_reads_the_shared_design_stage_back(problem, tm
     _, foreign = least_squares_fit(obj, other_start, shared=[tmp_path / "first"],
                                    **{**kw, "binding": {"data": "b"}})
     assert foreign["search"]["n_shared"] == 0 and foreign["params"] == ref["params"]
+    _, nowhere = least_squares_fit(obj, other_start, shared=[tmp_path / "nowhere"], **kw)
+    assert nowhere["search"]["n_shared"] == 0 and nowhere["params"] == ref["params"]
 
 
 class ScaledBasins(TwoBasins):

@@ -201,6 +201,9 @@ class Fit:
         read back instead of solved again: a multi-start fit's design points and their polish do
         not depend on the start. Only a folder bound to the same inputs is read (else a warning);
         it is never written."""
+        if not folder.is_dir():
+            log.warning("shared checkpoint %s: no such folder; nothing read", folder)
+            return
         try:
             theirs = json.loads((folder / "binding.json").read_text())
         except (OSError, ValueError):
