@@ -211,8 +211,9 @@ class Fit:
         if binding is None or theirs != json.loads(json.dumps(binding)):
             log.warning("shared checkpoint %s: not written for the same inputs; its solves are not used", folder)
             return
+        log_file = folder / "evaluations.jsonl"
         records = []
-        for line in (folder / "evaluations.jsonl").read_text().splitlines() if (folder / "evaluations.jsonl").exists() else []:
+        for line in log_file.read_text().splitlines() if log_file.exists() else []:
             try:
                 records.append(json.loads(line))
             except json.JSONDecodeError:      # a torn last line: that solve is simply not shared

@@ -141,8 +141,7 @@ class WorkflowStudy:
         stage screens the same design points from every start and polishes the same best ones,
         so every seed after the first of its law and method reads them back from the first
         seed's checkpoint (its job waits for that fit) instead of solving them again."""
-        fit = self.spec.get("fit", {})
-        if job.method != "least-squares" or int(fit.get("design_points", 0)) <= 0:
+        if not self._has_design_stage(job):
             return None
         first = FitJob(job.law, self.seeds[0], job.method)
         return None if first == job else first
@@ -152,10 +151,12 @@ class WorkflowStudy:
         checkpoint later seeds wait for, 1 for another fit with a design stage (the longest),
         0 otherwise. (Measured in paper-table1..3 from nothing: Snakemake started Table 2's first
         seed after four of Table 3's fits, and its two other seeds waited for it at the end.)"""
-        if self.shared_with(job) is None and any(self.shared_with(j) == job for j in self.fit_jobs()):
+        if any(self.shared_with(j) == job for j in self.fit_jobs()):
             return 2
-        design = job.method == "least-squares" and int(self.spec.get("fit", {}).get("design_points", 0)) > 0
-        return 1 if design else 0
+        return 1 if self._has_design_stage(job) else 0
+
+    def _has_design_stage(self, job: FitJob) -> bool:
+        return job.method == "least-squares" and int(self.spec.get("fit", {}).get("design_points", 0)) > 0
 
     @property
     def agree_tol(self) -> float:
