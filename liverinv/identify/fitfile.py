@@ -36,7 +36,10 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
     if jacobian is None:
         jacobian, _ = fit.fd_jacobian(x_best, purpose="uncertainty", fd_purpose="uncertainty")
     noise = getattr(fit.obj, "noise", None)
-    groups = fit.obj.residual_groups() if noise is not None else None
+    labels = fit.obj.residual_groups()          # also kept: laws are compared on them (pipeline.compare)
+    if labels.size != ev.residual.size:
+        raise RuntimeError(f"{labels.size} residual groups for {ev.residual.size} residuals")
+    groups = labels if noise is not None else None
     unc = gauss_newton(jacobian, ev.residual, fit.obj.M, fit.log_scale, groups=groups)
     units = [PARAMS[k].unit for k in names]
     # the misfit at the first stage's noise levels (the sensor's and the flow's estimate, the
@@ -74,6 +77,9 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
             n_ind=((), int(fit.obj.M), {"long_name": "indenter residuals"}),
             at_bound=("param", fit.at_bound(x_best)),
             residual=("residual_index", ev.residual),
+            residual_group=("residual_index", np.unique(labels, return_inverse=True)[1].ravel().astype(np.int32),
+                            {"long_name": "cluster of the residual row: a 12 mm cube of tracked nodes with all "
+                                          "its frames, or 0.25 s of the indenter record (Objective.residual_groups)"}),
             model_time=("drive", ev.model_time, {"units": "s", "long_name": "driving times of the model"}),
             model_depth=("drive", ev.model_depth, {"units": "m", "long_name": "model indenter depth at the optimum"}),
             model_force=("drive", ev.model_force, {"units": "N", "long_name": "model indenter force at the optimum"}),
