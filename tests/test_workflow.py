@@ -159,6 +159,9 @@ def test_reduced_quick_study_end_to_end(tmp_path):
     err = ds.best.sel(param=["C1", "C2", "D1"]) / ds.truth.sel(param=["C1", "C2", "D1"]) - 1
     assert float(abs(err).max()) < 0.05, err.values
     assert (ds.status.values != "failed").all()
+    # the misfit per residual cluster, kept for the paired comparison of laws, adds up to Phi
+    assert np.allclose(ds.phi_cluster_common.sum("cluster"), ds.phi_common, rtol=1e-9, atol=0)
+    assert 0 < int(ds.cluster_is_field.sum()) < ds.sizes["cluster"]
     assert json.loads(ds.attrs["fit_files"]) and len(ds.attrs["study_sha256"]) == 64
     md = (res / "mini/table.md").read_text()
     assert "## elastic" in md and "(140)" in md

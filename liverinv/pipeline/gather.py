@@ -8,6 +8,7 @@ import numpy as np
 import xarray as xr
 
 from ..fileio import provenance
+from ..identify.compare import group_misfit
 from ..laws import PARAMS
 from .spec import FitJob, WorkflowStudy
 
@@ -48,6 +49,7 @@ def gather_fits(study: WorkflowStudy, paths: dict[FitJob, Path]) -> xr.Dataset:
     flags = np.full(shape, "", dtype=object)
     message = np.full(shape, "", dtype=object)
     histories = {}
+    clusters = {}          # (i, j, k) -> (labels, misfit per cluster at the common levels, field cluster mask)
     phi_units = "1"
     for job, path in paths.items():
         i, j, k = laws.index(job.law), seeds.index(job.seed), methods.index(job.method)
@@ -67,6 +69,8 @@ def gather_fits(study: WorkflowStudy, paths: dict[FitJob, Path]) -> xr.Dataset:
             scalars[key][i, j, k] = float(ds[key])
         for key in ("phi", "phi_vol", "phi_ind"):
             scalars[key + "_common"][i, j, k] = float(ds[key + "_common"] if key + "_common" in ds else ds[key])
+        if "residual_group" in ds:
+            clusters[(i, j, k)] = _cluster_misfit(ds)
         n = int(ds.attrs["n_solves"])
         # a search on merged frame pairs (identify.search) is part of the fit's cost
         scalars["search_solves"][i, j, k] = int(ds.attrs.get("search_solves", 0))
@@ -109,6 +113,7 @@ def gather_fits(study: WorkflowStudy, paths: dict[FitJob, Path]) -> xr.Dataset:
         HP[i, j, k, :n] = P
     truth = study.truth_params()
     dims = ("law", "seed", "method")
+    cluster_vars = _cluster_vars(clusters, shape, dims, phi_units)
     units = {"phi": phi_units, "phi_vol": phi_units, "phi_ind": phi_units, "phi_common": phi_units,
              "phi_vol_common": phi_units, "phi_ind_common": phi_units, "rms_depth": "m", "rms_axial": "m",
              "rms_force": "N", "n_solves": "1", "search_solves": "1", "solve_time_s": "s", "cond": "1"}
@@ -132,6 +137,7 @@ def gather_fits(study: WorkflowStudy, paths: dict[FitJob, Path]) -> xr.Dataset:
             history_phi_ind=(dims + ("evaluation",), H["phi_ind"], {"units": phi_units}),
             history_wall_s=(dims + ("evaluation",), H["wall_s"], {"units": "s"}),
             history_params=(dims + ("evaluation", "param"), HP),
+            **cluster_vars,
         ),
         coords=dict(law=laws, seed=seeds, method=methods, param=names),
     )
@@ -140,6 +146,41 @@ def gather_fits(study: WorkflowStudy, paths: dict[FitJob, Path]) -> xr.Dataset:
                            fit_files=[str(paths[j]) for j in paths],
                            paper=study.spec.get("paper", {}))
     return out
+
+
+def _cluster_misfit(ds):
+    """A fit file's misfit per residual cluster at the common noise levels (its field rows
+    scaled by phi_vol_common / phi_vol, its indenter rows likewise), and which clusters are
+    of the field."""
+    labels = ds.residual_group.values
+    r = ds.residual.values
+    n_vol = ds.v_fem.size
+    scale = np.ones(r.size)
+    for key, rows in (("phi_vol", slice(0, n_vol)), ("phi_ind", slice(n_vol, None))):
+        own = float(ds[key])
+        common = float(ds[key + "_common"]) if key + "_common" in ds else own
+        scale[rows] = common / own if own > 0 else 1.0
+    G = int(labels.max()) + 1
+    field = np.bincount(labels[:n_vol], minlength=G) > 0
+    return labels, group_misfit(r, labels, G, scale), field
+
+
+def _cluster_vars(clusters, shape, dims, phi_units) -> dict:
+    """`phi_cluster_common` (dims, cluster) and `cluster_is_field` (cluster) when every fit
+    with them has the same clusters (the same data and residual layout); else nothing."""
+    if not clusters:
+        return {}
+    labels0, _, field = next(iter(clusters.values()))
+    if any(lab.shape != labels0.shape or not np.array_equal(lab, labels0) for lab, _, _ in clusters.values()):
+        return {}
+    out = np.full(shape + (field.size,), np.nan)
+    for (i, j, k), (_, phi, _) in clusters.items():
+        out[i, j, k] = phi
+    return dict(
+        phi_cluster_common=(dims + ("cluster",), out, {
+            "units": phi_units, "long_name": "misfit per residual cluster (12 mm node cube with all its "
+            "frames, or 0.25 s of the indenter record) at the common noise levels: sums to phi_common"}),
+        cluster_is_field=(("cluster",), field, {"long_name": "the cluster holds field (tracked motion) rows"}))
 
 
 def _law_params(study, law):

@@ -12,6 +12,8 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from ..identify.compare import WORSE_Z, paired_misfit_test
+
 __all__ = ["fit_table", "markdown_table", "ranking"]
 
 
@@ -81,6 +83,12 @@ def markdown_table(ds: xr.Dataset) -> str:
     if rk is not None:
         out += ["\n## Ranking of the laws by Phi_vol (best fit of each law, at the common noise levels)\n",
                 _plain_markdown(rk)]
+        if "z" in rk:
+            out += ["", f"z_vol, z_ind, z: each law against the first-ranked one, the paired test of their misfits "
+                        f"per residual cluster (12 mm node cubes with all their frames, 0.25 s of the indenter "
+                        f"record; cluster-robust, `liverinv.identify.compare`); positive: worse. `clearly_worse` "
+                        f"names the parts where z > {WORSE_Z:.2f} (one-sided p < 0.01): worse by more than "
+                        f"the data's own error explains. Between nested laws only indicative."]
     out += ["", f"Provenance: study file sha256 {ds.attrs.get('study_sha256', '?')[:16]}..., liverinv "
                 f"{ds.attrs.get('liverinv_version', '?')}, git {ds.attrs.get('git_revision', '?')}."]
     return "\n".join(out) + "\n"
@@ -89,11 +97,16 @@ def markdown_table(ds: xr.Dataset) -> str:
 def ranking(ds: xr.Dataset) -> pd.DataFrame | None:
     """The laws ordered by their best Phi_vol (over seeds and methods, fits not failed) at the
     common noise levels (the balance stage's levels are each fit's own), set beside the
-    paper's values where the study gives them; None with a single law."""
+    paper's values where the study gives them; None with a single law.
+
+    Where the fits carry their misfit per residual cluster (`phi_cluster_common`), each law
+    is also tested against the first-ranked one by the paired, cluster-robust test of
+    `identify.compare` on Phi_vol, Phi_ind and Phi (`z_vol`, `z_ind`, `z`; positive: worse),
+    and `clearly_worse` names the parts in which it is worse at the one-sided 1 % level."""
     if ds.sizes["law"] < 2:
         return None
     paper = json.loads(ds.attrs.get("paper", "{}") or "{}")
-    rows = []
+    rows, chosen = [], {}
     for law in ds.law.values:
         f = ds.sel(law=law)
         ok = (f.status != "failed").values
@@ -103,12 +116,30 @@ def ranking(ds: xr.Dataset) -> pd.DataFrame | None:
             continue
         j, k = np.unravel_index(np.nanargmin(pv), pv.shape)
         g = f.isel({"seed": j, "method": k})
+        chosen[str(law)] = g
         rows.append(dict(law=str(law), phi_vol=float(g.phi_vol_common), phi_ind=float(g.phi_ind_common),
                          phi=float(g.phi_common),
                          status=str(g.status.values)))
-    df = pd.DataFrame(rows).sort_values("phi_vol", na_position="last").reset_index(drop=True)
+    df = pd.DataFrame(rows).sort_values("phi_vol", na_position="last", kind="stable").reset_index(drop=True)
     df.insert(1, "rank", np.arange(1, len(df) + 1))
     df["phi_vol_vs_best"] = df.phi_vol / df.phi_vol.min()
+    if "phi_cluster_common" in ds:
+        field = ds.cluster_is_field.values.astype(bool)
+        parts = {"z_vol": field, "z_ind": ~field, "z": np.ones_like(field)}
+        best = chosen.get(str(df.law.iloc[0]))
+        z = {key: [] for key in parts}
+        for law in df.law:
+            g = chosen.get(law)
+            for key, mask in parts.items():
+                a = None if g is None or best is None else g.phi_cluster_common.values[mask]
+                ok = a is not None and law != df.law.iloc[0] and np.isfinite(a).all()
+                z[key].append(paired_misfit_test(a, best.phi_cluster_common.values[mask])["z"] if ok else np.nan)
+        for key, v in z.items():
+            df[key] = v
+        names = {"z_vol": "Phi_vol", "z_ind": "Phi_ind", "z": "Phi"}
+        df["clearly_worse"] = [", ".join(names[k] for k in parts if r[k] > WORSE_Z) or
+                               ("-" if i == 0 or not np.isfinite(r["z"]) else "no")
+                               for i, (_, r) in enumerate(df.iterrows())]
     if paper:
         pv = {law: v.get("phi_vol", np.nan) for law, v in paper.items()}
         order = sorted((v, law) for law, v in pv.items() if np.isfinite(v))
