@@ -181,3 +181,37 @@ def test_kept_factorization_gives_displacement_sensitivity(coarse_forward):
         u_pm.append(solve_history(mm, hist.time, hist.value, options=NewtonOptions(rtol=1e-10)).q)
     fd = (u_pm[0] - u_pm[1]) / (2 * dC)
     assert np.linalg.norm(du - fd) < 1e-4 * np.linalg.norm(fd)
+
+
+@pytest.mark.parametrize("law, params, options", [
+    ("elastic", BENCH_ELASTIC, {}),
+    ("SBR", dict(BENCH_ELASTIC, g1=0.4, tau_g1=0.3, k1=0.3, tau_k1=0.5, D2=1e-2), {}),
+    ("elastic+punch_friction+bottom_slip", dict(BENCH_ELASTIC, k_punch=1e7, c_bottom=1e-5), {}),
+])
+def test_the_tangent_is_symmetric_and_its_symmetric_factorization_solves_like_the_general_one(
+        coarse_mesh, law, params, options):
+    """`Indentation.symmetric_tangent` lets the solver factorize the upper triangle (PARDISO
+    mtype -2): the tangent at a deformed, relaxing state is symmetric under force and
+    displacement control, and the symmetric and general factorizations give one solution."""
+    from liverinv.fem.linsolve import SparseSolver, backend
+    from liverinv.forward import ForwardModel
+    fm = ForwardModel(coarse_mesh, **options)
+    m = fm.model(law, params)
+    assert m.symmetric_tangent
+    hist = ramp_history(3e-3, 2e-3, steps=3, unload=False)
+    h = solve_history(m, hist.time, hist.value)
+    rng = np.random.default_rng(5)
+    b = rng.standard_normal((m.n_red, 3))
+    for control in ("force", "displacement"):
+        K = m.evaluate(h.q, 0.5, h.state, tangent=True).K.tocsr()
+        if control == "displacement":
+            K = m.fix_punch(K)
+        assert abs(K - K.T).max() <= 1e-12 * abs(K).max()
+        if backend() != "pardiso":
+            continue
+        sym, gen = SparseSolver(symmetric=True), SparseSolver()
+        sym.factorize(K)
+        gen.factorize(K)
+        x_sym, x_gen = sym.solve(b), gen.solve(b)
+        assert np.abs(K @ x_sym - b).max() < 1e-9 * np.abs(b).max()
+        assert np.abs(x_sym - x_gen).max() <= 1e-8 * np.abs(x_gen).max()

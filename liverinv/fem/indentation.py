@@ -78,6 +78,11 @@ class Indentation(SpringTerms):
     support : "fixed", "sliding" or "compliant" (tangential spring, parameter c_bottom)
     """
 
+    # the tangent is symmetric (hyperelastic and QLV stresses from one energy's tangent, springs,
+    # the punch row and column fixed together): the solver factorizes it as such
+    # (tests/test_forward.py checks it under both controls)
+    symmetric_tangent = True
+
     def __init__(self, space: Space, params: dict, punch="frictionless", support="fixed"):
         if punch not in PUNCH_CONTACTS:
             raise ValueError(f"punch contact must be one of {PUNCH_CONTACTS}, not {punch!r}")

@@ -75,7 +75,7 @@ class _Engine:
 
     def __init__(self, model, opts):
         self.model, self.opts = model, opts
-        self.lin = SparseSolver(opts.solver)
+        self.lin = SparseSolver(opts.solver, symmetric=getattr(model, "symmetric_tangent", False))
         self.fresh = False      # factorization taken at the current iterate
         self.has_factor = False
         self.pairs = []         # BFGS secant pairs on top of the current factorization
