@@ -81,6 +81,17 @@ class Effect:
     rivals: tuple = ()            # effects that explain the same signature another way: when this one
                                   # is refitted as a trial, they are too (`discover.trial_rows`)
     geometric: bool = False       # scanned over spheres of the mesh (an inclusion)
+    far: float | None = None      # the amplitude (in `unit`) of the effect in full (a bonded punch, a
+                                  # sliding bottom): also tested by the secant to it (`score.diagnose`)
+
+    def saturating_amplitude(self, fraction: float, half: float) -> float:
+        """The amplitude that gives `fraction` of the full effect (`far`) when the effect
+        saturates like a spring in series with the tissue, fraction = a / (a + half)
+        (`half`: the amplitude of half the effect); the full amplitude from 0.99 on, or
+        when `half` is unknown."""
+        if fraction >= 0.99 or not half > 0:
+            return float(self.far)
+        return float(min(self.far, half * max(fraction, 0.0) / (1.0 - fraction)))
 
     def applies_to(self, law: str, fixed=()) -> bool:
         """The law lacks the effect (its parameters are absent, or held at their null)."""
@@ -166,9 +177,11 @@ CATALOG = {e.name: e for e in [
     Effect("strain_stiffening", "the shear response stiffens with strain (second reduced-polynomial term C2)",
            "C2", "kPa", Linear("C2", 1e3), needs=("C2",)),
     Effect("punch_friction", "the punch face holds the tissue tangentially (friction: a tangential spring "
-           "on the footprint, k_punch)", "k_punch", "kPa/mm", Linear("k_punch", 1e6), needs=("k_punch",)),
+           "on the footprint, k_punch)", "k_punch", "kPa/mm", Linear("k_punch", 1e6), needs=("k_punch",),
+           far=1e6),     # 1e12 Pa/m: bonded to 2e-5 in force (tests/test_springs.py)
     Effect("bottom_slip", "the bottom face slides (a tangential compliance of the support, c_bottom)",
-           "c_bottom", "mm/kPa", Linear("c_bottom", 1e-6), needs=("c_bottom",)),
+           "c_bottom", "mm/kPa", Linear("c_bottom", 1e-6), needs=("c_bottom",),
+           far=1e4),     # 1e-2 m/Pa: sliding to 1e-3
     Effect("poroelastic", "fluid flows through the solid and carries part of the load (biphasic, Darcy "
            "permeability kappa)", "1/kappa", "1e7 N s/m^4", Reciprocal("kappa", 1e7, KAPPA_DRAINED),
            needs=("kappa",), force=_drained_darcy, rivals=("bulk_relaxation",)),

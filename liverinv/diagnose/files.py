@@ -33,7 +33,7 @@ def explain(d: dict, n=3) -> str:
                                                f"{100 * d['min_drop']:.0f} % of Phi_vol"))
         lines.append(f"{row['effect']}: {row['description']}. Adding it is predicted to remove "
                      f"{100 * row['predicted_drop']:.1f} % of Phi_vol (p = {row['p_value']:.2g} after the scan's "
-                     f"correction){'; one-step estimate ' + est if est else ''}; it acts {row['where'].split(' (')[0]}. "
+                     f"correction){(('; estimate from the secant to its full size ' if row.get('secant') else '; one-step estimate ') + est) if est else ''}; it acts {row['where'].split(' (')[0]}. "
                      f"{verdict}.")
     where = _where_it_fails(d.get("splits", {}))
     return "\n".join(lines + ([where] if where else []))
@@ -68,6 +68,9 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
             n_scan=("effect", [r["n_scan"] for r in rows]),
             estimate=("effect", [json.dumps(r["estimate"]) for r in rows],
                       {"long_name": "one-step estimate of the effect's parameters (JSON, SI)"}),
+            secant=("effect", [bool(r.get("secant", False)) for r in rows],
+                    {"long_name": "the best scan point is the secant to the effect's full size (a bonded punch, "
+                                  "a sliding bottom), not the tangent at its null"}),
             where=("effect", [r["where"] for r in rows]),
             description=("effect", [r["description"] for r in rows]),
         ),
@@ -80,8 +83,10 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
     ds.attrs = provenance(recommended=d["recommended"], alpha=d["alpha"], min_drop=d["min_drop"], scan=d["scan"],
                           not_tested=d["not_tested"], n_directions=d["n_directions"], wall_s=d["wall_s"],
                           phi=d["phi"], phi_vol=d["phi_vol"], phi_ind=d["phi_ind"], explanation=explain(d),
+                          n_solves=d["n_solves"],
                           method="score tests at the null from one forward solve with sensitivities, orthogonal "
-                                 "to the fitted parameters", **attrs)
+                                 "to the fitted parameters (and secants to the full size of the boundary effects, "
+                                 "one solve each)", **attrs)
     return ds
 
 
