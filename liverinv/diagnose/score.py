@@ -20,7 +20,7 @@ effect's amplitude at every scanned value (z). For each candidate:
 A boundary effect saturates far from its null: a spring on the footprint goes from frictionless
 to bonded between about 1e6 and 1e9 Pa/m, and its first-order score at the null sees little of
 the bonded punch (on the imaged SR-with-bonded-punch case it predicted 3.8 % where the refit
-removed 38.5 %, and ranked third). Such an effect (`Effect.far`: punch friction, bottom slip) is
+removed 38.5 %, and the quartic bulk term ranked first). Such an effect (`Effect.far`: punch friction, bottom slip) is
 also tested by the secant to its full size, one nonlinear solve of the fitted law with the
 punch bonded or the bottom sliding: z = r_full - r, its amplitude theta the fraction of the full
 effect, a second point of the effect's scan. The one-step parameter follows from the effect's
