@@ -339,6 +339,17 @@ def test_planted_inclusion_is_found_where_it_is(tiny):
     assert np.linalg.norm(c - inc["center_m"]) < 0.004
 
 
+def test_rival_swaps_offer_an_earlier_additions_rival_beside_the_candidate():
+    from liverinv.diagnose.discover import rival_swaps
+    # bulk relaxation added first: punch friction is also tried beside Darcy flow instead
+    assert rival_swaps("elastic", ["bulk_relaxation"], "punch_friction") == [("bulk_relaxation", "poroelastic")]
+    assert law_with("elastic", ["poroelastic", "punch_friction"])[0] == "PE+punch_friction"
+    assert rival_swaps("elastic", ["poroelastic"], "shear_relaxation") == [("poroelastic", "bulk_relaxation")]
+    assert rival_swaps("elastic", ["bulk_relaxation"], "poroelastic") == []     # the candidate is the rival
+    assert rival_swaps("elastic", ["bottom_slip"], "poroelastic") == []         # no rival
+    assert rival_swaps("elastic", [], "bulk_relaxation") == []
+
+
 def test_trial_rows_take_the_recommended_then_the_other_significant_candidates_once_each():
     """Discover refits the recommended candidates, then those significant below the drop
     threshold (100-frame PSR data: Darcy flow at 0.3 %, p 2e-7 behind a recommended bulk

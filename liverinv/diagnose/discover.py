@@ -13,8 +13,11 @@ was recommended at 5.1 %; refitted, PSR reached merged-pair Phi 349 and SBR 400)
 effect is recommended, the recommended candidates and then the other significant ones (p below
 `score.ALPHA`, physical sign), the best `N_TRIALS` in all, are each refitted with
 `TRIAL_EVALUATIONS` solves, and the one whose refit lowers Phi most is added and refitted to
-convergence. An addition whose refit lowers Phi by less than `score.MIN_DROP` of
-Phi_vol (the measure of the predicted drop) is not kept, and the loop stops. (Phi, not Phi_vol:
+convergence. From the second step on, a candidate is also tried in place of an earlier
+addition's rival (`rival_swaps`: bulk relaxation added, Darcy flow its rival, so Darcy flow
+with the candidate instead of bulk relaxation with it), since two true effects can each be
+worth less alone than a rival of one of them. An addition whose refit lowers Phi by less than
+`score.MIN_DROP` of Phi_vol (the measure of the predicted drop) is not kept, and the loop stops. (Phi, not Phi_vol:
 bulk relaxation hidden behind SR shows in the indenter record. On the imaged sr_bulk case the SR
 fit's Phi_vol was already the truth's, 2959 vs 2961, while its Phi_ind was twice the truth's;
 the SBR refit lowered Phi by 2.2 % of Phi_vol and Phi_vol by 0.95 %.)
@@ -49,7 +52,7 @@ from ..laws import PARAMS, get_law
 from .effects import CATALOG, law_with
 from .score import MIN_DROP, diagnose, refine_inclusion
 
-__all__ = ["discover", "final_fit", "fit_law", "trial_rows"]
+__all__ = ["discover", "final_fit", "fit_law", "rival_swaps", "trial_rows"]
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +78,26 @@ def trial_rows(diagnosis, n=N_TRIALS) -> list:
     chosen = list(dict.fromkeys(diagnosis["eligible"] + diagnosis["significant"]))[:n]
     rivals = [r for e in chosen for r in CATALOG[e].rivals if r in best_row and r not in chosen]
     return [best_row[e] for e in dict.fromkeys(chosen + rivals)]
+
+
+def rival_swaps(base_law, added, effect) -> list[tuple[str, str]]:
+    """(E, R): an added effect E whose rival R (`Effect.rivals`) could take its place beside the
+    candidate `effect`, in a law that exists. Greedy selection adds one effect at a time, so
+    two true effects that are each worth less alone than a rival of one of them are otherwise
+    never reached: Darcy flow and a bonded punch behind elastic, where bulk relaxation alone
+    beats Darcy flow alone (Phi 1199 against 1325) and punch friction alone (1306), but Darcy
+    flow with punch friction reaches 948 (the truth's own 957)."""
+    out = []
+    for e in added:
+        for r in CATALOG[e].rivals:
+            if r in added or r == effect:
+                continue
+            try:
+                get_law(law_with(base_law, [x for x in added if x != e] + [r, effect])[0])
+            except ValueError:
+                continue
+            out.append((e, r))
+    return out
 
 
 def fit_law(objective, start, design_points=None, max_evaluations=100, balance=False, progress=None):
@@ -174,12 +197,14 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     obj = fit.obj
     steps = []
     current_law, fixed, added = base_law, dict(user_fixed), []
+    tried_params = {}      # effect -> its latest trial fit's parameters (the start of a swap to it)
     params = res["best"]["params"]
     rec = res["best"]
     stopped = f"reached --max-steps {max_steps}"
     for step in range(max_steps + 1):
         d = diagnose(obj, params, fit.names, fit.log_scale, rec["phi_vol"])
         steps.append(dict(step=step, law=current_law, fixed=dict(fixed), added=added[-1] if added and step else "",
+                          effects=list(added),
                           params={**params, **fixed, **_geometry(held)}, sd=d["uncertainty"]["sd"],
                           warnings=step_warnings(fit, params, d["uncertainty"]),
                           phi=rec["phi"], phi_vol=rec["phi_vol"], phi_ind=rec["phi_ind"],
@@ -191,26 +216,36 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
         if step == max_steps:
             break
         eligible = trial_rows(d)
+        swaps = {row["effect"]: rival_swaps(base_law, added, row["effect"]) for row in eligible}
+        n_trials = sum(1 + len(v) for v in swaps.values())
         trials = {}
         t0 = time.perf_counter()
         for row in eligible:
             if row["effect"] == "inclusion":     # the sphere on a finer grid first (one solve)
                 row = dict(row, estimate=refine_inclusion(obj, params, fit.names, fit.log_scale, rec["phi_vol"],
                                                           row["estimate"]))
-            new_law, new_fixed = law_with(base_law, added + [row["effect"]])
-            new_fixed = _with_user_fixed(new_law, new_fixed, user_fixed, added + [row["effect"]])
-            guess = {**params, **fixed, **row["estimate"]}
-            guess = _clip_start(new_law, {**get_law(new_law).defaults,
-                                          **{k: v for k, v in guess.items() if k not in new_fixed}})
-            more = ()
-            if row["effect"] == "inclusion":
-                est = row["estimate"]
-                more = (Inclusion(tuple(est["inclusion_center_m"]), est["inclusion_radius_m"], "fitted"),)
-            t_obj = objective(new_law, new_fixed, noise, more)
-            budget = TRIAL_EVALUATIONS if len(eligible) > 1 else 100
-            t_fit, t_res = fit_law(t_obj.every(m), guess, design_points=0, max_evaluations=budget, progress=progress)
-            if t_res["best"] is not None:
-                trials[row["effect"]] = (row, new_law, new_fixed, t_obj, t_fit, t_res)
+            for swap in [None] + swaps[row["effect"]]:
+                effects = added + [row["effect"]] if swap is None else \
+                    [e for e in added if e != swap[0]] + [swap[1], row["effect"]]
+                new_law, new_fixed = law_with(base_law, effects)
+                new_fixed = _with_user_fixed(new_law, new_fixed, user_fixed, effects)
+                # a swap starts from the rival's own trial fit (the step that preferred the effect)
+                guess = {**params, **fixed, **(tried_params.get(swap[1], {}) if swap else {}), **row["estimate"]}
+                guess = _clip_start(new_law, {**get_law(new_law).defaults,
+                                              **{k: v for k, v in guess.items() if k not in new_fixed}})
+                more = ()
+                if row["effect"] == "inclusion":
+                    est = row["estimate"]
+                    more = (Inclusion(tuple(est["inclusion_center_m"]), est["inclusion_radius_m"], "fitted"),)
+                t_obj = objective(new_law, new_fixed, noise, more)
+                budget = TRIAL_EVALUATIONS if n_trials > 1 else 100
+                t_fit, t_res = fit_law(t_obj.every(m), guess, design_points=0, max_evaluations=budget,
+                                       progress=progress)
+                if t_res["best"] is not None:
+                    key = row["effect"] if swap is None else f"{row['effect']} ({swap[1]} for {swap[0]})"
+                    trials[key] = (row, new_law, new_fixed, t_obj, t_fit, t_res, effects, swap)
+                    if swap is None:
+                        tried_params[row["effect"]] = t_res["best"]["params"]
         steps[-1]["wall_trials_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         steps[-1]["trials"] = {e: dict(phi=t[5]["best"]["phi"], phi_vol=t[5]["best"]["phi_vol"], n_solves=len(t[4].history),
@@ -218,8 +253,9 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
         if not trials:
             stopped = f"the refit with {', '.join(r['effect'] for r in eligible)} failed"
             break
-        effect = min(trials, key=lambda e: trials[e][5]["best"]["phi"])
-        row, new_law, new_fixed, obj, fit, res = trials[effect]
+        key = min(trials, key=lambda e: trials[e][5]["best"]["phi"])
+        row, new_law, new_fixed, obj, fit, res, effects, swap = trials[key]
+        effect = row["effect"]
         n_search = 0
         if m > 1:
             # the winner's multi-start search on the merged pairs, then all frames (the trial's
@@ -234,7 +270,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
             if res["best"] is None:
                 stopped = f"the refit with {effect} on all frames failed"
                 break
-        elif len(eligible) > 1 or _needs_multistart(new_law):
+        elif n_trials > 1 or _needs_multistart(new_law):
             # the winner of the trials, to convergence; with the multi-start stage for a law with
             # relaxation (from a base fit that mimicked the effect with a relaxation time far off,
             # the local refit stays there: PSR from SR at tau_g1 1e-4 s ended at 1.5e-3, truth 0.5)
@@ -249,7 +285,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
             stopped = (f"the refit with {effect} lowered Phi by {100 * actual_phi:.2f} % of Phi_vol only "
                        f"(< {100 * MIN_DROP:g} %); not kept")
             break
-        added.append(effect)
+        added = effects
         held = [i for i in obj.forward.inclusions if i.fitted]
         rec, params = res["best"], res["best"]["params"]
         current_law, fixed = new_law, new_fixed
@@ -259,7 +295,8 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
         steps[-1]["next"] = dict(lr=lr, dof=dof, p_lr=float(stats.chi2.sf(max(lr, 0.0), max(dof, 1))),
                                  d_aic=-lr + 2 * dof, d_bic=-lr + dof * np.log(n), effect=effect,
                                  actual_drop_vol=actual, actual_drop_phi=actual_phi,
-                                 predicted_drop_vol=row["predicted_drop"])
+                                 predicted_drop_vol=row["predicted_drop"],
+                                 replaced=f"{swap[0]} -> {swap[1]}" if swap else "")
     final = None
     if final_objective_for is not None:
         try:

@@ -113,6 +113,11 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
     ds = xr.Dataset(
         data_vars=dict(
             added=("step", [s["added"] for s in steps], {"long_name": "effect added at this step"}),
+            effects=("step", [", ".join(s.get("effects", [])) for s in steps],
+                     {"long_name": "the effects the model holds at this step (an added effect can have taken "
+                                   "the place of an earlier one's rival: see replaced)"}),
+            replaced=("step", [""] + [n.get("replaced", "") for n in nxt[:-1]],
+                      {"long_name": "an earlier effect swapped for its rival at this step (E -> R), or empty"}),
             law=("step", [s["law"] for s in steps]),
             phi=("step", [s["phi"] for s in steps], {"units": "1"}),
             phi_vol=("step", [s["phi_vol"] for s in steps], {"units": "1"}),
