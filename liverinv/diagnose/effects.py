@@ -91,7 +91,7 @@ class Effect:
         when `half` is unknown."""
         if fraction >= 0.99 or not half > 0:
             return float(self.far)
-        return float(min(self.far, half * max(fraction, 0.0) / (1.0 - fraction)))
+        return float(min(self.far, half * fraction / (1.0 - fraction)))
 
     def applies_to(self, law: str, fixed=()) -> bool:
         """The law lacks the effect (its parameters are absent, or held at their null)."""

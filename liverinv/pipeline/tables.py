@@ -124,22 +124,7 @@ def ranking(ds: xr.Dataset) -> pd.DataFrame | None:
     df.insert(1, "rank", np.arange(1, len(df) + 1))
     df["phi_vol_vs_best"] = df.phi_vol / df.phi_vol.min()
     if "phi_cluster_common" in ds:
-        field = ds.cluster_is_field.values.astype(bool)
-        parts = {"z_vol": field, "z_ind": ~field, "z": np.ones_like(field)}
-        best = chosen.get(str(df.law.iloc[0]))
-        z = {key: [] for key in parts}
-        for law in df.law:
-            g = chosen.get(law)
-            for key, mask in parts.items():
-                a = None if g is None or best is None else g.phi_cluster_common.values[mask]
-                ok = a is not None and law != df.law.iloc[0] and np.isfinite(a).all()
-                z[key].append(paired_misfit_test(a, best.phi_cluster_common.values[mask])["z"] if ok else np.nan)
-        for key, v in z.items():
-            df[key] = v
-        names = {"z_vol": "Phi_vol", "z_ind": "Phi_ind", "z": "Phi"}
-        df["clearly_worse"] = [", ".join(names[k] for k in parts if r[k] > WORSE_Z) or
-                               ("-" if i == 0 or not np.isfinite(r["z"]) else "no")
-                               for i, (_, r) in enumerate(df.iterrows())]
+        _versus_first(df, chosen, ds.cluster_is_field.values.astype(bool))
     if paper:
         pv = {law: v.get("phi_vol", np.nan) for law, v in paper.items()}
         order = sorted((v, law) for law, v in pv.items() if np.isfinite(v))
@@ -147,6 +132,22 @@ def ranking(ds: xr.Dataset) -> pd.DataFrame | None:
         df["paper_phi_vol"] = [pv.get(law, np.nan) for law in df.law]
         df["paper_rank"] = [prank.get(law, np.nan) for law in df.law]
     return df
+
+
+def _versus_first(df: pd.DataFrame, chosen: dict, field: np.ndarray) -> None:
+    """Add to the ranking `df` the paired test of each law's chosen fit against the first
+    row's (z_vol, z_ind, z) and `clearly_worse`, the parts where z > WORSE_Z."""
+    parts = {"z_vol": ("Phi_vol", field), "z_ind": ("Phi_ind", ~field), "z": ("Phi", np.ones_like(field))}
+    first = chosen.get(str(df.law.iloc[0]))
+    for key, (_, mask) in parts.items():
+        df[key] = [paired_misfit_test(chosen[law].phi_cluster_common.values[mask],
+                                      first.phi_cluster_common.values[mask])["z"]
+                   if i > 0 and first is not None and law in chosen
+                   and np.isfinite(chosen[law].phi_cluster_common.values[mask]).all() else np.nan
+                   for i, law in enumerate(df.law)]
+    df["clearly_worse"] = [", ".join(label for key, (label, _) in parts.items() if r[key] > WORSE_Z)
+                           or ("-" if i == 0 or not np.isfinite(r["z"]) else "no")
+                           for i, (_, r) in enumerate(df.iterrows())]
 
 
 def _plain_markdown(df: pd.DataFrame) -> str:
