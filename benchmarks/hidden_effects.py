@@ -54,6 +54,8 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "poro_k3e-8": ("PE", dict(E, kappa=3e-8), {}, "elastic"),
          "poro_k1e-7": ("PE", dict(E, kappa=1e-7), {}, "elastic"),
          "poro_k1e-6": ("PE", dict(E, kappa=1e-6), {}, "elastic"),
+         # Darcy flow between the diagnosis's secant points (kappa 3e-9 and 3e-8), behind SR
+         "sr_poro_k5e-9": ("PSR", dict(SR, kappa=5e-9), {}, "SR"),
          "inclusion_x5": ("elastic", E, inclusion(5.0), "elastic"),
          "inclusion_x10": ("elastic", E, inclusion(10.0), "elastic"),
          # sizes between the null and the limit: partial friction and slip, a softer sphere

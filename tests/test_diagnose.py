@@ -176,20 +176,24 @@ def test_drained_biphasic_null_reproduces_the_elastic_model(tiny):
 
 def test_planted_poroelastic_flow_is_significant(tiny):
     """PE truth (kappa 1e-8) behind an elastic fit: the poroelastic score is far beyond the
-    test's level (measured p 3e-10; bulk relaxation, which mimics part of it, p 6e-3) and its
-    one-step permeability has the right order; the Darcy direction needs no biphasic solve."""
+    test's level and ranks first, its permeability of the right order (measured: the secant
+    to kappa 3e-9 predicts 88 % at p 3.8e-5; bulk relaxation, which mimics part of it, 24 % at
+    p 6e-3; the first-order score alone gave p 3e-10). Its first-order direction at the
+    drained null needs no biphasic solve; its secant scan takes one biphasic solve per point."""
     run = tiny.run("PE", dict(E, kappa=1e-8), ramp_history(4e-3, 2e-3, frames=17, unload=True))
     obj = Objective(tiny, "elastic", noisy_measurements(run, 0), noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
     fit = Fit(obj, dict(C1=150.0, C2=6000.0, D1=1e-3))
     out = fit.least_squares()
     d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])
     row = next(r for r in d["rows"] if r["effect"] == "poroelastic")
-    assert row["p_value"] < 1e-6 and row["predicted_drop"] > 0.1 and "poroelastic" in d["eligible"]
+    assert row["p_value"] < 1e-4 and row["predicted_drop"] > 0.5 and "poroelastic" in d["eligible"]
     assert 1e-9 < row["estimate"]["kappa"] < 1e-6
-    # one solve with every sensitivity (Darcy flow's included), and one for each secant to a
-    # boundary effect's full size (punch friction, bottom slip): no biphasic solve
-    from liverinv.diagnose.effects import CATALOG
-    assert d["n_solves"] == 1 + sum(CATALOG[r["effect"]].far is not None for r in d["rows"]) == 3
+    assert d["rows"][0]["effect"] == "poroelastic" == d["recommended"]
+    # one solve with every sensitivity (Darcy flow's included), one for each secant to a
+    # boundary effect's full size (punch friction, bottom slip) and one biphasic solve per point
+    # of Darcy flow's secant scan
+    from liverinv.diagnose.effects import CATALOG, KAPPA_SECANTS
+    assert d["n_solves"] == 1 + sum(len(CATALOG[r["effect"]].secant_points()) for r in d["rows"]) == 3 + len(KAPPA_SECANTS)
     # the significant candidates are those with p below the level and a physical sign
     assert d["significant"] == [r["effect"] for r in d["rows"] if r["p_value"] < d["alpha"] and r["physical"]]
     assert set(d["eligible"]) <= set(d["significant"])

@@ -11,7 +11,8 @@ Available: ``shear_relaxation``, ``bulk_relaxation``, ``nonlinear_bulk``,
 `liverinv.laws.TERMS`: the law "SR+punch_friction"), and ``poroelastic`` (Darcy flow through
 an elastic or SR skeleton: the laws PE and PSR, refitted from the drained null kappa =
 `KAPPA_DRAINED`; tested with amplitude 1/kappa by its first-order force on the solid model,
-`fem.darcy.DrainedDarcy`, with no biphasic solve), and ``inclusion`` (C1 and C2 scaled by
+`fem.darcy.DrainedDarcy`, with no biphasic solve, and by secants to the biphasic model of the
+fitted skeleton at `KAPPA_SECANTS`), and ``inclusion`` (C1 and C2 scaled by
 inc_scale in a sphere; the sphere is scanned over `inclusion_grid`, the contrast tested in
 both directions; refitted as the law "+inclusion" with the best sphere held in the model).
 
@@ -29,7 +30,7 @@ import numpy as np
 
 from ..laws import LAWS, PARAMS, TERMS, get_law
 
-__all__ = ["Effect", "Linear", "Reciprocal", "CATALOG", "available_effects", "law_with", "TAU_GRID_S", "KAPPA_DRAINED"]
+__all__ = ["Effect", "Linear", "Reciprocal", "CATALOG", "available_effects", "law_with", "TAU_GRID_S", "KAPPA_DRAINED", "KAPPA_SECANTS"]
 
 TAU_GRID_S = tuple(float(v) for v in np.logspace(-2, 1, 7))     # 0.01 .. 10 s, 2 per decade
 INCLUSION_OFFSETS_M = (-5e-3, 0.0, 5e-3)
@@ -83,6 +84,11 @@ class Effect:
     geometric: bool = False       # scanned over spheres of the mesh (an inclusion)
     far: float | None = None      # the amplitude (in `unit`) of the effect in full (a bonded punch, a
                                   # sliding bottom): also tested by the secant to it (`score.diagnose`)
+    secant_scan: tuple = ()       # amplitudes (in `unit`) at which an effect far from linear in its
+                                  # amplitude is also tested by the secant from its null (Darcy flow)
+    model_at: Callable | None = None   # (fm, model, params) -> the fitted law's model with the effect's
+                                       # parameters `params`, where no parameter variant of the solid
+                                       # model carries it (Darcy flow: the biphasic model)
 
     def saturating_amplitude(self, fraction: float, half: float) -> float:
         """The amplitude that gives `fraction` of the full effect (`far`) when the effect
@@ -125,6 +131,16 @@ class Effect:
         p[self.to_param.param] = self.to_param(eps)
         return p
 
+    def secant_points(self) -> list[float]:
+        """The amplitudes (in `unit`) tested by a secant from the null: the full size of an
+        effect that saturates, the scan of one far from linear."""
+        return ([self.far] if self.far is not None else []) + list(self.secant_scan)
+
+    def secant_model(self, model, full: dict, a: float, fm):
+        """The fitted `model` (full parameter set `full`) with the effect at amplitude `a`."""
+        p = self.variant(full, a, {}, fm)
+        return self.model_at(fm, model, p) if self.model_at is not None else model.with_params(p)
+
     def physical(self, theta: float) -> bool:
         """Is the one-step amplitude `theta` physical (two-sided effects: a positive stiffness)?"""
         return theta > -0.95 if self.sign == 0 else theta * self.sign > 0
@@ -166,6 +182,20 @@ def _drained_darcy(fm):
     return DrainedDarcy(fm.space, fm.drained, scale=1e7)
 
 
+def _biphasic_like(fm, model, params):
+    """The biphasic model of the solid `model`'s skeleton (same space, contact and support)
+    with the permeability of `params`: on the solid model's own quadrature, so that its
+    residual differs from the fitted one by Darcy flow alone (1.4e-3 of the largest at
+    the drained null, tests/test_diagnose.py)."""
+    from ..fem.biphasic import Biphasic
+    return Biphasic(model.space, params, punch=model.punch, support=model.support, drained=fm.drained)
+
+
+#: Darcy flow's secant scan: kappa 3e-9 and 3e-8 m^4/(N s), a consolidation time of a 6 mm
+#: footprint of about 6 s and 0.6 s on liver-like moduli (from 1e-6 on, the first-order score at
+#: the drained null sees it). As amplitudes 1/kappa in 1e7 N s/m^4.
+KAPPA_SECANTS = (3e-9, 3e-8)
+
 CATALOG = {e.name: e for e in [
     Effect("shear_relaxation", "the shear stiffness relaxes over time (QLV Prony term on the isochoric stress)",
            "g1", "1", Linear("g1"), needs=("g1", "tau_g1"), scanned={"tau_g1": TAU_GRID_S}),
@@ -184,7 +214,8 @@ CATALOG = {e.name: e for e in [
            far=1e4),     # 1e-2 m/Pa: sliding to 1e-3
     Effect("poroelastic", "fluid flows through the solid and carries part of the load (biphasic, Darcy "
            "permeability kappa)", "1/kappa", "1e7 N s/m^4", Reciprocal("kappa", 1e7, KAPPA_DRAINED),
-           needs=("kappa",), force=_drained_darcy, rivals=("bulk_relaxation",)),
+           needs=("kappa",), force=_drained_darcy, rivals=("bulk_relaxation",), secant_scan=tuple(1e-7 / k for k in KAPPA_SECANTS),
+           model_at=_biphasic_like),
     Effect("inclusion", "a sphere of other stiffness inside the tissue (C1 and C2 scaled by inc_scale inside)",
            "inc_scale - 1", "1", sign=0.0, needs=("inc_scale",), geometric=True),
 ]}
