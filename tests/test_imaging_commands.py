@@ -306,23 +306,6 @@ def test_tracker_response_to_the_true_motion_is_the_tracked_data(tmp_path, synth
     assert np.abs(r - tracked).max() < 3e-3 * np.abs(tracked).max()
 
 
-def test_tracker_response_is_on_by_default_for_warped_volumes_only():
-    """The default follows how the volumes were made: warped from the first volume (the
-    response is then exact) with the likelihood's tracker operator; not for moved scatterers,
-    measured data (no imaging record), the paper's objective or an indenter-only fit; an
-    explicit choice wins."""
-    from liverinv.identify.response import tracker_response_choice as choice
-    warp, scatter = {"imaging": json.dumps({"mode": "warp"})}, {"imaging": json.dumps({"mode": "scatter"})}
-    assert choice(None, warp, "likelihood", "tracker")[0] is True
-    assert choice(None, scatter, "likelihood", "tracker") == (False, "default off: the bundle's volumes are not "
-                                                                     "warped (imaging mode 'scatter')")
-    assert "measured data" in choice(None, {}, "likelihood", "tracker")[1]
-    assert choice(None, warp, "paper", "nodes")[0] is False
-    assert choice(None, warp, "likelihood", "tracker", indenter_only=True)[0] is False
-    assert choice(False, warp, "likelihood", "tracker") == (False, "turned off")
-    assert choice(True, scatter, "likelihood", "tracker") == (True, "asked for")
-
-
 def test_fit_continues_on_the_tracker_response(tmp_path, synthesized):
     """`fit --tracker-response`: the first stage's optimum and the tracker's error are recorded,
     the fit goes on from that optimum on the corrected motion; refused without the operator."""
@@ -337,7 +320,6 @@ def test_fit_continues_on_the_tracker_response(tmp_path, synthesized):
     a = p.parse_args(base + ["--checkpoint", str(tmp_path / "ck")])
     assert a.func(a) == 0
     ds = xr.load_dataset(out)
-    assert ds.attrs["tracker_response_choice"] == "asked for"
     rec = json.loads(ds.attrs["tracker_response"])
     assert set(rec["first_stage"]) == {"C1", "C2"} and rec["first_stage_solves"] >= 3
     assert 0 < rec["error_rms_m"] < 1e-4

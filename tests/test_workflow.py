@@ -88,12 +88,6 @@ def test_fit_jobs_and_their_options_follow_the_study(tmp_path):
     s = load_workflow_study(write_study(tmp_path / "r.yaml", fit={
         "laws": ["elastic"], "seeds": {"a": {"C1": 140.0}}, "observation": "tracker", "tracker_response": True}))
     assert "--tracker-response" in s.fit_arguments(s.fit_jobs()[0])
-    # false is passed on; the default (auto) leaves the choice to the fit, from the bundle
-    for value, expected in ((False, ["--no-tracker-response"]), ("auto", [])):
-        s = load_workflow_study(write_study(tmp_path / "r.yaml", fit={
-            "laws": ["elastic"], "seeds": {"a": {"C1": 140.0}}, "tracker_response": value}))
-        args = s.fit_arguments(s.fit_jobs()[0])
-        assert [a for a in args if "tracker-response" in a] == expected
 
 
 @needs_snakemake

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -80,14 +79,12 @@ def register(sub):
     p.add_argument("--indenter-only", action="store_true",
                    help="fit the indenter record alone when the flow has too few confident nodes for a "
                         "volumetric term (otherwise refused)")
-    p.add_argument("--tracker-response", action=argparse.BooleanOptionalAction, default=None,
+    p.add_argument("--tracker-response", action="store_true",
                    help="after the fit, render the bundle's first volume warped by the fitted model's motion, "
                         "track it with the flow's options, take the difference from the observation operator's "
                         "prediction as the tracker's error and continue the fit on the tracked motion less that "
                         "error (needs --observation tracker; one more solve plus rendering and tracking, ~5 min "
-                        "for 100 paper-size volumes). Default: on for the likelihood objective when the bundle's "
-                        "volumes were made by warping its first volume (liverinv synthesize, mode warp), off "
-                        "otherwise (moved-scatterer or measured volumes)")
+                        "for 100 paper-size volumes)")
     p.add_argument("--keep-going", action="store_true",
                    help="if the fit fails, write a fit file that records the failure (status 'failed', the "
                         "error) and exit 0, so that a workflow's other fits go on and its table says so")
@@ -157,13 +154,6 @@ def _run(args) -> int:
             args.noise_force, args.noise_depth, args.noise_tracking, args.quadrature_order, args.indenter_only,
             inclusions_arg(args.inclusions))
         noise = obj.noise
-        from ..identify.response import tracker_response_choice
-        from ..imaging.bundle import open_bundle
-        with open_bundle(args.bundle) as b:
-            use_response, response_why = tracker_response_choice(
-                args.tracker_response, b.attrs, args.objective, args.observation, args.indenter_only)
-        if use_response and args.tracker_response is None:
-            print(f"tracker response: {response_why} (--no-tracker-response skips it)", file=sys.stderr)
         binding = _binding(args, args.law, fixed, noise, args.flow)
         if args.checkpoint and args.fresh_checkpoint:
             _set_aside_if_stale(Path(args.checkpoint), binding)
@@ -186,7 +176,7 @@ def _run(args) -> int:
         bar.close()
         raise UserError(str(e)) from None
     response = {}
-    if use_response and result["best"] is not None:
+    if args.tracker_response and result["best"] is not None:
         try:
             if args.observation != "tracker":
                 raise ValueError("--tracker-response needs --observation tracker (the operator it corrects)")
@@ -214,7 +204,6 @@ def _run(args) -> int:
                                                    indenter_only=int(args.indenter_only),
                                                    inclusions=json.dumps([i.to_json() for i in obj.forward.inclusions]),
                                                    tracker_response=json.dumps(response),
-                                                   tracker_response_choice=response_why,
                                                    shared_solves=int(result.get("n_shared", 0))
                                                    + int((result.get("search") or {}).get("n_shared", 0)),
                                                    model_mesh_sha256=file_sha256(args.model_mesh or args.mesh)))

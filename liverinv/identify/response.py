@@ -21,35 +21,7 @@ from .objective import Objective
 
 log = logging.getLogger(__name__)
 
-__all__ = ["tracker_error", "with_corrected_data", "continue_on_tracker_response", "tracker_response_choice"]
-
-
-def tracker_response_choice(option, bundle_attrs: dict, objective: str, observation: str,
-                            indenter_only: bool = False) -> tuple[bool, str]:
-    """Whether a fit continues on the tracker's response (`option`: True, False or None for
-    the default) and why. The default is on for the likelihood objective with the tracker
-    observation when the bundle's volumes were made by warping its first volume (the imaging
-    record of `liverinv synthesize`, mode ``warp``, the paper's way): there the response to a
-    model's motion is the first volume warped by it and tracked, exactly the data's kind of
-    volume, and the correction removes the operator's error (Table 1 setup with the paper's
-    noise: C1 -3.6, C2 -3.2, D1 -5.5, kappa -8.2 % -> -1.2, +0.2, +0.1, -1.8 %). Moved-scatterer
-    and measured volumes form their speckle anew as the tissue moves, which a warped first
-    volume does not reproduce (it did not help there): off."""
-    import json
-
-    if option is not None:
-        return bool(option), "asked for" if option else "turned off"
-    try:
-        mode = json.loads(bundle_attrs.get("imaging") or "{}").get("mode")
-    except (TypeError, ValueError):
-        mode = None
-    if mode != "warp":
-        return False, (f"default off: the bundle's volumes are not warped ({'imaging mode ' + repr(mode) if mode else 'no imaging record: measured data'})")
-    if indenter_only:
-        return False, "default off: the fit uses the indenter record only"
-    if objective != "likelihood" or observation != "tracker":
-        return False, f"default off: the {objective} objective with the {observation} observation has no tracker operator to correct"
-    return True, "default on: the bundle's volumes are warped from its first volume"
+__all__ = ["tracker_error", "with_corrected_data", "continue_on_tracker_response"]
 
 
 def tracker_error(objective: Objective, params: dict, bundle, flow, tracking_mesh) -> np.ndarray:

@@ -125,8 +125,8 @@ class WorkflowStudy:
                          ("quadrature_order", "--quadrature-order"), ("jacobian", "--jacobian")):
             if key in fit and not (key == "jacobian" and job.method != "least-squares"):
                 args += [opt, str(fit[key])]
-        if fit.get("tracker_response", "auto") != "auto":      # auto: the fit decides from the bundle
-            args += ["--tracker-response" if fit["tracker_response"] else "--no-tracker-response"]
+        if fit.get("tracker_response"):
+            args += ["--tracker-response"]
         if job.method == "least-squares":
             for key, opt in (("design_points", "--design-points"), ("polish", "--polish"),
                              ("probe_evaluations", "--probe-evaluations"), ("max_evaluations", "--max-evaluations")):
