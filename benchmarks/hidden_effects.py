@@ -114,6 +114,9 @@ def main(argv=None):
     ap.add_argument("--mesh", default="tiny")
     ap.add_argument("--truth-mesh", default="tiny")
     ap.add_argument("--frames", type=int, help="volumes over the cycle (default: the study's 31)")
+    ap.add_argument("--mode", choices=["scatter", "warp"], default="scatter",
+                    help="volumes of moved scatterers with receiver noise and decorrelation (the study's), or "
+                         "the first volume warped (synthesize's default, the paper's way; no receiver noise)")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     mesh, tmesh = mesh_file(args.mesh, args.out), mesh_file(args.truth_mesh, args.out)
@@ -125,6 +128,10 @@ def main(argv=None):
             study = dict(base, mesh=str(tmesh), law=law, params=params, **extra)
             study["imaging"] = dict(base["imaging"], seed=seed)
             tag = f"{case}_s{seed}"
+            if args.mode == "warp":
+                study["imaging"] = {k: v for k, v in study["imaging"].items() if k not in ("noise_db", "decorrelation")}
+                study["imaging"]["mode"] = "warp"
+                tag = f"{case}_warp_s{seed}"
             if args.frames:
                 study["loading"] = dict(base["loading"], frames=args.frames)
                 study["imaging"].update(frames=args.frames, frame_rate_hz=None)   # evenly over the cycle
