@@ -9,6 +9,7 @@ import numpy as np
 import xarray as xr
 
 from ..fileio import provenance
+from .effects import CATALOG
 from .splits import SPLIT_MEANING
 
 __all__ = ["diagnosis_dataset", "discovery_dataset", "discovery_objective", "explain"]
@@ -23,6 +24,10 @@ def explain(d: dict, n=3) -> str:
     lines = []
     for row in d["rows"][:n]:
         est = ", ".join(f"{k} = {_fmt(v)}" for k, v in row["estimate"].items())
+        if est:
+            est = ("; estimate from the secant to " + ("its full size " if CATALOG[row["effect"]].far is not None
+                                                       else "the best point of its scan ")
+                   if row.get("secant") else "; one-step estimate ") + est
         verdict = ("recommended" if row["effect"] == d["recommended"] else
                    "also passes the test (discover refits it as a trial)" if row["effect"] in d["eligible"] else
                    "significant below the drop threshold (discover refits it as a trial when an effect is "
@@ -33,7 +38,7 @@ def explain(d: dict, n=3) -> str:
                                                f"{100 * d['min_drop']:.0f} % of Phi_vol"))
         lines.append(f"{row['effect']}: {row['description']}. Adding it is predicted to remove "
                      f"{100 * row['predicted_drop']:.1f} % of Phi_vol (p = {row['p_value']:.2g} after the scan's "
-                     f"correction){(('; estimate from the secant to its full size ' if row.get('secant') else '; one-step estimate ') + est) if est else ''}; it acts {row['where'].split(' (')[0]}. "
+                     f"correction){est}; it acts {row['where'].split(' (')[0]}. "
                      f"{verdict}.")
     where = _where_it_fails(d.get("splits", {}))
     return "\n".join(lines + ([where] if where else []))
@@ -69,8 +74,9 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
             estimate=("effect", [json.dumps(r["estimate"]) for r in rows],
                       {"long_name": "one-step estimate of the effect's parameters (JSON, SI)"}),
             secant=("effect", [bool(r.get("secant", False)) for r in rows],
-                    {"long_name": "the best scan point is the secant to the effect's full size (a bonded punch, "
-                                  "a sliding bottom), not the tangent at its null"}),
+                    {"long_name": "the best scan point is a secant from the null, not the tangent at it: to the "
+                                  "effect's full size (a bonded punch, a sliding bottom) or to a point of its secant "
+                                  "scan (Darcy flow at kappa 3e-9, 3e-8)"}),
             where=("effect", [r["where"] for r in rows]),
             description=("effect", [r["description"] for r in rows]),
         ),
@@ -86,7 +92,8 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
                           n_solves=d["n_solves"],
                           method="score tests at the null from one forward solve with sensitivities, orthogonal "
                                  "to the fitted parameters (and secants to the full size of the boundary effects, "
-                                 "one solve each)", **attrs)
+                                 "one solve each, and to Darcy flow at kappa 3e-9 and 3e-8, one biphasic solve each)",
+                          **attrs)
     return ds
 
 
