@@ -392,3 +392,27 @@ def test_explain_gives_each_candidate_its_own_verdict():
     assert "significant below the drop threshold" in lines[2]
     assert lines[3].endswith("wrong sign.")
     assert lines[4].endswith("p = 0.2 >= 0.01.")
+
+
+def test_the_refined_inclusion_grid_keeps_the_scan_rules(tiny, monkeypatch):
+    """The finer grid around the scan's best sphere (2.5 mm steps) holds only spheres the
+    scan itself allows: none within 2 mm of the top face (moved up, a 6 mm sphere 10 mm deep
+    would reach 1.5 mm below it), each with enough elements of the model mesh."""
+    from liverinv.diagnose import score
+    from liverinv.diagnose.effects import INCLUSION_MIN_COVER_M, inclusion_grid, sphere_allowed
+    seen = {}
+
+    def scan_only(objective, params, fitted, log_scale, phi_vol, effects=None, scans=None, **kw):
+        seen["grid"] = scans["inclusion"]
+        return {"rows": [{"estimate": {}}]}
+    monkeypatch.setattr(score, "diagnose", scan_only)
+    top = float(tiny.mesh.points[:, 2].max())
+    est = {"inclusion_center_m": [0.0, 0.0, top - 10e-3], "inclusion_radius_m": 6e-3}
+
+    class Objective:
+        forward = tiny
+    assert score.refine_inclusion(Objective, {}, [], [], 1.0, est) == est
+    grid = seen["grid"]
+    assert 0 < len(grid) < 54 and all(sphere_allowed(tiny.mesh, g) for g in grid)
+    assert min(top - g["center_m"][2] - g["radius_m"] for g in grid) >= INCLUSION_MIN_COVER_M - 1e-12
+    assert all(sphere_allowed(tiny.mesh, g) for g in inclusion_grid(tiny.mesh))

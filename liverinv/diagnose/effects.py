@@ -30,7 +30,8 @@ import numpy as np
 
 from ..laws import LAWS, PARAMS, TERMS, get_law
 
-__all__ = ["Effect", "Linear", "Reciprocal", "CATALOG", "available_effects", "law_with", "TAU_GRID_S", "KAPPA_DRAINED", "KAPPA_SECANTS"]
+__all__ = ["Effect", "Linear", "Reciprocal", "CATALOG", "available_effects", "law_with", "TAU_GRID_S", "KAPPA_DRAINED", "KAPPA_SECANTS",
+           "sphere_allowed"]
 
 TAU_GRID_S = tuple(float(v) for v in np.logspace(-2, 1, 7))     # 0.01 .. 10 s, 2 per decade
 INCLUSION_OFFSETS_M = (-5e-3, 0.0, 5e-3)
@@ -161,19 +162,21 @@ def inclusion_grid(mesh) -> list[dict]:
     model on the same mesh, a 3.5 mm sphere 4 mm deep was recommended: contrast 3.8, predicted
     drop 5 %, p 6e-5), and spheres holding fewer than `MIN_INCLUSION_ELEMENTS` element
     centroids of the model mesh (which it does not resolve)."""
-    from ..forward import Inclusion
     top = float(mesh.points[:, 2].max())
-    out = []
-    for r in INCLUSION_RADII_M:
-        for z in INCLUSION_DEPTHS_M:
-            for x in INCLUSION_OFFSETS_M:
-                for y in INCLUSION_OFFSETS_M:
-                    sphere = {"center_m": [x, y, top - z], "radius_m": r}
-                    if z - r < INCLUSION_MIN_COVER_M:
-                        continue
-                    if Inclusion(tuple(sphere["center_m"]), r, {}).elements(mesh).sum() >= MIN_INCLUSION_ELEMENTS:
-                        out.append(sphere)
-    return out
+    spheres = [{"center_m": [x, y, top - z], "radius_m": r} for r in INCLUSION_RADII_M for z in INCLUSION_DEPTHS_M
+               for x in INCLUSION_OFFSETS_M for y in INCLUSION_OFFSETS_M]
+    return [s for s in spheres if sphere_allowed(mesh, s)]
+
+
+def sphere_allowed(mesh, sphere: dict) -> bool:
+    """A sphere the inclusion may be tested as (`inclusion_grid`'s rules, also for a finer grid
+    around its best, `score.refine_inclusion`): at least `INCLUSION_MIN_COVER_M` below the top
+    face and holding at least `MIN_INCLUSION_ELEMENTS` element centroids of the model mesh."""
+    from ..forward import Inclusion
+    depth = float(mesh.points[:, 2].max()) - float(sphere["center_m"][2])
+    if depth - sphere["radius_m"] < INCLUSION_MIN_COVER_M - 1e-12:
+        return False
+    return int(Inclusion(tuple(sphere["center_m"]), sphere["radius_m"], {}).elements(mesh).sum()) >= MIN_INCLUSION_ELEMENTS
 
 
 def _drained_darcy(fm):

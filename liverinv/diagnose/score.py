@@ -48,7 +48,7 @@ import time as _time
 import numpy as np
 from scipy import stats
 
-from .effects import CATALOG, INCLUSION_DEPTHS_M, INCLUSION_RADII_M, available_effects
+from .effects import CATALOG, INCLUSION_DEPTHS_M, INCLUSION_RADII_M, available_effects, sphere_allowed
 
 __all__ = ["diagnose", "refine_inclusion", "ALPHA", "MIN_DROP"]
 
@@ -210,6 +210,11 @@ def refine_inclusion(objective, params, fitted, log_scale, phi_vol, estimate, st
     c, r = np.asarray(estimate["inclusion_center_m"]), float(estimate["inclusion_radius_m"])
     grid = [{"center_m": list(c + step * np.array([i, j, k])), "radius_m": rr}
             for rr in (0.8 * r, r) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)]
+    # the coarse scan's rules hold here too: moved 2.5 mm up, a sphere under the punch reached the
+    # top face (warped PSR data, seed 7: a 7x stiffer sphere 0 mm below the footprint was added)
+    grid = [g for g in grid if sphere_allowed(objective.forward.mesh, g)]
+    if not grid:
+        return estimate
     d = diagnose(objective, params, fitted, log_scale, phi_vol, effects=["inclusion"], scans={"inclusion": grid})
     return d["rows"][0]["estimate"] or estimate
 
