@@ -306,6 +306,24 @@ def test_tracker_response_to_the_true_motion_is_the_tracked_data(tmp_path, synth
     assert np.abs(r - tracked).max() < 3e-3 * np.abs(tracked).max()
 
 
+def test_a_diagnosis_of_warped_volumes_carries_the_caveat_and_of_others_none(tmp_path, synthesized):
+    """The diagnosis's thresholds were calibrated on moved-scatterer volumes: a bundle of warped
+    volumes (synthesize's default) gets the measured caveat, one whose imaging record says
+    otherwise or that has none (measured data) gets none."""
+    import h5py
+    from liverinv.diagnose.files import WARPED_CAVEAT, imaging_caveat
+    bundle, _ = synthesized
+    assert imaging_caveat(bundle) == WARPED_CAVEAT and "3 warped elastic null" in WARPED_CAVEAT
+    other = tmp_path / "b.h5"
+    other.write_bytes(bundle.read_bytes())
+    with h5py.File(other, "a") as f:
+        f.attrs["imaging"] = json.dumps({**json.loads(f.attrs["imaging"]), "mode": "scatter"})
+    assert imaging_caveat(other) == ""
+    with h5py.File(other, "a") as f:
+        del f.attrs["imaging"]
+    assert imaging_caveat(other) == ""
+
+
 def test_fit_continues_on_the_tracker_response(tmp_path, synthesized):
     """`fit --tracker-response`: the first stage's optimum and the tracker's error are recorded,
     the fit goes on from that optimum on the corrected motion; refused without the operator."""

@@ -4,6 +4,7 @@ candidate effect's null value, from one forward solve with sensitivities)."""
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 
@@ -48,7 +49,7 @@ def objective_of_fit(fit, bundle, flow, mesh, model_mesh=None, observation=None,
 
 def run(args) -> int:
     from ..cli import UserError
-    from ..diagnose.files import diagnosis_dataset, explain
+    from ..diagnose.files import diagnosis_dataset, explain, imaging_caveat
     from ..diagnose.score import diagnose
     from ..diagnose.splits import SPLIT_MEANING
     from ..fileio import write_netcdf
@@ -61,7 +62,8 @@ def run(args) -> int:
         d = diagnose(obj, params, names, [PARAMS[n].scale == "log" for n in names], float(ds.phi_vol), args.effects)
     except (ValueError, KeyError) as e:
         raise UserError(str(e)) from None
-    out = diagnosis_dataset(d, fit=str(args.fit), base_law=obj.law, fit_phi_vol=float(ds.phi_vol))
+    caveat = imaging_caveat(args.bundle)
+    out = diagnosis_dataset(d, fit=str(args.fit), base_law=obj.law, fit_phi_vol=float(ds.phi_vol), caveat=caveat)
     write_netcdf(out, args.out)
     if args.figures:
         from ..diagnose.figures import plot_diagnosis
@@ -69,6 +71,8 @@ def run(args) -> int:
     for split, parts in d.get("splits", {}).items():
         print(f"{SPLIT_MEANING.get(split, 'Phi_vol')} by {split}: " + ", ".join(f"{k} {100 * v:.0f} %" for k, v in parts.items()))
     print(explain(d))
+    if caveat:
+        print(f"warning: {caveat}", file=sys.stderr)
     print(f"wrote {args.out}: recommended {d['recommended']} ({d['wall_s']:.1f} s, {d['n_directions']} directions "
           f"in one solve); not tested: {', '.join(d['not_tested'])}")
     return 0

@@ -40,7 +40,7 @@ def run(args) -> int:
 
     from ..cli import UserError
     from ..diagnose.discover import discover
-    from ..diagnose.files import discovery_dataset
+    from ..diagnose.files import discovery_dataset, imaging_caveat
     from ..fileio import write_netcdf
     from ..identify.setup import objective_from_files
     from ..laws import LawError, get_law
@@ -103,7 +103,8 @@ def run(args) -> int:
                                     "finer model mesh (--final-mesh auto: the tracking cylinder with the medium "
                                     "preset), whose parameters are the last step's params",
                            inclusions=json.dumps([i.to_json() for i in inclusions]), fixed=json.dumps(fixed),
-                           final_model_mesh=str(final_mesh or ""), final_model_mesh_note=final_note)
+                           final_model_mesh=str(final_mesh or ""), final_model_mesh_note=final_note,
+                           caveat=imaging_caveat(args.bundle))
     write_netcdf(ds, args.out)
     if args.figures:
         from ..diagnose.figures import plot_discovery
@@ -125,6 +126,8 @@ def run(args) -> int:
         print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
     else:
         print(f"no final fit on a finer mesh: {final_note}")
+    if ds.attrs["caveat"]:
+        print(f"warning: {ds.attrs['caveat']}", file=sys.stderr)
     print(f"wrote {args.out}: {ds.attrs['stopped_because']}")
     return 0
 
