@@ -9,7 +9,7 @@ import numpy as np
 import xarray as xr
 
 from ..fileio import provenance
-from .effects import CATALOG
+from .effects import CATALOG, KAPPA_SECANTS
 from .splits import SPLIT_MEANING
 
 __all__ = ["diagnosis_dataset", "discovery_dataset", "discovery_objective", "explain", "imaging_caveat"]
@@ -98,7 +98,7 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
             secant=("effect", [bool(r.get("secant", False)) for r in rows],
                     {"long_name": "the best scan point is a secant from the null, not the tangent at it: to the "
                                   "effect's full size (a bonded punch, a sliding bottom) or to a point of its secant "
-                                  "scan (Darcy flow at kappa 3e-9, 3e-8)"}),
+                                  "scan (Darcy flow at kappa " + ", ".join(f"{k:g}" for k in KAPPA_SECANTS) + " m^4/(N s))"}),
             where=("effect", [r["where"] for r in rows]),
             description=("effect", [r["description"] for r in rows]),
         ),
@@ -114,7 +114,8 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
                           n_solves=d["n_solves"],
                           method="score tests at the null from one forward solve with sensitivities, orthogonal "
                                  "to the fitted parameters (and secants to the full size of the boundary effects, "
-                                 "one solve each, and to Darcy flow at kappa 3e-9 and 3e-8, one biphasic solve each)",
+                                 "one solve each, and to Darcy flow at kappa " + ", ".join(f"{k:g}" for k in KAPPA_SECANTS)
+                                 + " m^4/(N s), one biphasic solve each)",
                           **attrs)
     return ds
 
