@@ -188,7 +188,9 @@ def test_reduced_quick_study_end_to_end(tmp_path):
     diag = xr.load_dataset(tmp_path / "diag.nc", engine="h5netcdf")
     from liverinv.diagnose.effects import CATALOG
     assert diag.attrs["recommended"] == "none" and set(diag.effect.values) <= set(CATALOG)
-    assert "warping" in diag.attrs["caveat"] and "warping" in disc.attrs["caveat"]      # warped volumes
+    # warped volumes: the stricter level and its caveat
+    assert "warping" in diag.attrs["caveat"] and "warping" in disc.attrs["caveat"]
+    assert diag.attrs["alpha"] == disc.attrs["alpha"] == 1e-4
     assert len(diag.effect) == len(CATALOG) - 1          # all but strain stiffening (elastic has C2)
     assert (diag.predicted_drop.values[:-1] >= diag.predicted_drop.values[1:]).all()      # rank order
     assert {"p_value", "estimate", "share_region", "share_time"} <= set(diag.data_vars)

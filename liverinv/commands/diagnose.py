@@ -49,7 +49,7 @@ def objective_of_fit(fit, bundle, flow, mesh, model_mesh=None, observation=None,
 
 def run(args) -> int:
     from ..cli import UserError
-    from ..diagnose.files import diagnosis_dataset, explain, imaging_caveat
+    from ..diagnose.files import diagnosis_dataset, explain, imaging_calibration
     from ..diagnose.score import diagnose
     from ..diagnose.splits import SPLIT_MEANING
     from ..fileio import write_netcdf
@@ -58,11 +58,13 @@ def run(args) -> int:
     obj, params, ds = objective_of_fit(args.fit, args.bundle, args.flow, args.mesh, args.model_mesh,
                                        args.observation, args.quadrature_order)
     names = list(params)
+    calibration = imaging_calibration(args.bundle)
     try:
-        d = diagnose(obj, params, names, [PARAMS[n].scale == "log" for n in names], float(ds.phi_vol), args.effects)
+        d = diagnose(obj, params, names, [PARAMS[n].scale == "log" for n in names], float(ds.phi_vol), args.effects,
+                     alpha=calibration["alpha"])
     except (ValueError, KeyError) as e:
         raise UserError(str(e)) from None
-    caveat = imaging_caveat(args.bundle)
+    caveat = calibration["caveat"]
     out = diagnosis_dataset(d, fit=str(args.fit), base_law=obj.law, fit_phi_vol=float(ds.phi_vol), caveat=caveat)
     write_netcdf(out, args.out)
     if args.figures:

@@ -40,7 +40,7 @@ def run(args) -> int:
 
     from ..cli import UserError
     from ..diagnose.discover import discover
-    from ..diagnose.files import discovery_dataset, imaging_caveat
+    from ..diagnose.files import discovery_dataset, imaging_calibration
     from ..fileio import write_netcdf
     from ..identify.setup import objective_from_files
     from ..laws import LawError, get_law
@@ -73,13 +73,15 @@ def run(args) -> int:
         return objective_for
 
     final_mesh, final_note = final_model_mesh(args)
+    calibration = imaging_calibration(args.bundle)
 
     from tqdm import tqdm
     bar = tqdm(desc=f"discover from {args.law}", unit="solve", disable=None)
     try:
         out = discover(objective_on(args.model_mesh), args.law, start, args.max_steps,
                        progress=lambda rec: bar.update(1), fixed=fixed,
-                       final_objective_for=objective_on(final_mesh) if final_mesh else None)
+                       final_objective_for=objective_on(final_mesh) if final_mesh else None,
+                       alpha=calibration["alpha"])
     except ValueError as e:
         raise UserError(str(e)) from None
     finally:
@@ -104,7 +106,7 @@ def run(args) -> int:
                                     "preset), whose parameters are the last step's params",
                            inclusions=json.dumps([i.to_json() for i in inclusions]), fixed=json.dumps(fixed),
                            final_model_mesh=str(final_mesh or ""), final_model_mesh_note=final_note,
-                           caveat=imaging_caveat(args.bundle))
+                           caveat=calibration["caveat"], alpha=calibration["alpha"])
     write_netcdf(ds, args.out)
     if args.figures:
         from ..diagnose.figures import plot_discovery
