@@ -27,7 +27,10 @@ def main(argv=None):
     args = ap.parse_args(argv)
     d = args.dir
     ds = xr.load_dataset(d / f"{args.tag}_disc.nc", engine="h5netcdf")
-    law, params = str(ds.law.values[0]), json.loads(ds.params.values[0])
+    # the base fit on the tracking mesh (`params` holds the final fit's on a finer mesh when the
+    # base law is the last step)
+    fits = ds.params_tracking_mesh if "params_tracking_mesh" in ds else ds.params
+    law, params = str(ds.law.values[0]), json.loads(fits.values[0])
     obj = discovery_objective(ds, bundle=d / f"{args.tag}.h5", flow=d / f"{args.tag}_flow.nc", mesh=args.mesh)
     names = [k for k in params if k in get_law(law).free]
     p = {k: params[k] for k in names}
