@@ -190,7 +190,7 @@ def test_reduced_quick_study_end_to_end(tmp_path):
     assert diag.attrs["recommended"] == "none" and set(diag.effect.values) <= set(CATALOG)
     # warped volumes: the stricter level and its caveat
     assert "warping" in diag.attrs["caveat"] and "warping" in disc.attrs["caveat"]
-    assert diag.attrs["alpha"] == disc.attrs["alpha"] == 1e-4
+    assert diag.attrs["alpha"] == disc.attrs["alpha"] == 1e-4 and "(p < 0.0001 after" in disc.attrs["defaults"]
     assert len(diag.effect) == len(CATALOG) - 1          # all but strain stiffening (elastic has C2)
     assert (diag.predicted_drop.values[:-1] >= diag.predicted_drop.values[1:]).all()      # rank order
     assert {"p_value", "estimate", "share_region", "share_time"} <= set(diag.data_vars)

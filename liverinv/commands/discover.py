@@ -40,6 +40,7 @@ def run(args) -> int:
 
     from ..cli import UserError
     from ..diagnose.discover import discover
+    from ..diagnose.effects import KAPPA_SECANTS
     from ..diagnose.files import discovery_dataset, imaging_calibration
     from ..fileio import write_netcdf
     from ..identify.setup import objective_from_files
@@ -90,10 +91,11 @@ def run(args) -> int:
                            model_mesh=str(args.model_mesh or args.mesh),
                            defaults="likelihood objective; multi-start (8 design points) for laws with relaxation; "
                                     "noise levels of the base fit after its balance stage for every step; "
-                                    "scans and thresholds of liverinv.diagnose.score (p < 0.01 after the scan's "
+                                    "scans and thresholds of liverinv.diagnose.score "
+                                    f"(p < {calibration['alpha']:g} after the scan's "
                                     "Bonferroni correction and a predicted drop >= 1 % of Phi_vol; punch friction "
                                     "and bottom slip also by the secant to bonded / sliding, Darcy flow by secants "
-                                    "to kappa 3e-9 and 3e-8); when several "
+                                    f"to kappa {' and '.join(f'{k:g}' for k in KAPPA_SECANTS)}); when several "
                                     "effects pass, the best 3 and their rivals are refitted for 8 solves each, from "
                                     "the second step also in place of an earlier addition's rival, and the lowest Phi "
                                     "is added (liverinv.diagnose.discover.N_TRIALS, TRIAL_EVALUATIONS); an inclusion's "

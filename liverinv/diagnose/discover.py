@@ -161,8 +161,9 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     `fixed`: the user's values held fixed in the base law (and in every later law that has
     them, unless the added effect is made of them); `final_objective_for`, built like
     `objective_for` on a finer model mesh: the last step's law is refitted on it, warm-started,
-    at the same noise levels (`final_fit`); `alpha`: the diagnoses' level (`files.imaging_calibration`). Returns the steps (law, added effect, fit and
-    diagnosis figures) and the final fit."""
+    at the same noise levels (`final_fit`); `alpha`: the diagnoses' level
+    (`files.imaging_calibration`). Returns the steps (law, added effect, fit and diagnosis
+    figures) and the final fit."""
     user_fixed = dict(fixed or {})
     held = []          # fitted inclusions added so far: every later model holds their spheres
 
