@@ -26,9 +26,9 @@ SR = dict(E, g1=0.4, tau_g1=0.5)
 SHALLOW = {"control": "displacement", "depth": 3.5e-3, "rate": 3.5e-3 / 3, "frames": 31, "unload": True}
 
 
-def inclusion(contrast, radius_m=0.005):
-    """A stiffer sphere 2 mm off the axis, its centre 7.7 mm below the top face."""
-    return {"inclusions": [{"center_m": [0.002, 0.0, 0.0223], "radius_m": radius_m,
+def inclusion(contrast, radius_m=0.005, center_m=(0.002, 0.0, 0.0223)):
+    """A stiffer sphere (by default 2 mm off the axis, its centre 7.7 mm below the top face)."""
+    return {"inclusions": [{"center_m": list(center_m), "radius_m": radius_m,
                             "scale": {"C1": contrast, "C2": contrast}}]}
 
 
@@ -69,7 +69,13 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "poro_friction": ("PE", dict(E, kappa=1e-8), {"contact": {"punch": "bonded"}}, "elastic"),
          "shear_bulk": ("SBR", dict(SR, D2=1000.0, k1=0.5, tau_k1=0.3), {}, "elastic"),
          "shear_poro": ("PSR", dict(SR, kappa=1e-8), {}, "elastic"),
-         "sr_slip": ("SR", SR, {"contact": {"support": "sliding"}}, "SR")}
+         "sr_slip": ("SR", SR, {"contact": {"support": "sliding"}}, "SR"),
+         # session 19, held out: shear relaxation with the quartic bulk term (SBR with k1 0) or
+         # with a 10x stiffer sphere, behind elastic; an 8x stiffer 4 mm sphere off the scan's
+         # grid (3 mm off axis in x and y, 11.3 mm deep)
+         "shear_nlbulk": ("SBR", dict(SR, D2=3e-4, k1=0.0, tau_k1=1.0), {}, "elastic"),
+         "shear_inclusion": ("SR", SR, inclusion(10.0), "elastic"),
+         "inclusion_x8_off": ("elastic", E, inclusion(8.0, 0.004, (-0.003, 0.003, 0.019)), "elastic")}
 
 
 def mesh_file(name, out):
