@@ -416,3 +416,41 @@ def test_the_refined_inclusion_grid_keeps_the_scan_rules(tiny, monkeypatch):
     assert 0 < len(grid) < 54 and all(sphere_allowed(tiny.mesh, g) for g in grid)
     assert min(top - g["center_m"][2] - g["radius_m"] for g in grid) >= INCLUSION_MIN_COVER_M - 1e-12
     assert all(sphere_allowed(tiny.mesh, g) for g in inclusion_grid(tiny.mesh))
+
+
+def test_a_sphere_that_is_the_trackers_is_vetoed_and_a_true_one_confirmed(tiny):
+    """The tracker-response check of an inclusion (warped volumes): homogeneous elastic data
+    whose tracked motion carries a planted tracker error shaped like a 3x stiffer sphere (the
+    motion difference such a sphere makes) pass the inclusion's test; told that error (the
+    tracker's response to the fitted model carries it), the check drops the sphere and nothing
+    is recommended. Told the tracker adds nothing, the same sphere is confirmed."""
+    from liverinv.diagnose.score import confirm_by_tracker_response
+    top = tiny.mesh.points[:, 2].max()
+    inc = {"center_m": [0.002, 0.0, top - 0.008], "radius_m": 0.005, "scale": {"C1": 3.0, "C2": 3.0}}
+    history = ramp_history(4e-3, 2e-3, frames=17, unload=True)
+    plain = tiny.run("elastic", E, history)
+    sphere = ForwardModel(tiny.mesh, inclusions=[inc]).run("elastic", E, history)
+    data = noisy_measurements(plain, 0)
+    idx = np.arange(0, len(plain.time), 2)
+    artefact = np.diff(sphere.u.values[idx] - plain.u.values[idx], axis=0)     # (K, N, 3)
+    data.u_of = data.u_of + artefact
+    obj = Objective(tiny, "elastic", data, noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
+    fit = Fit(obj, dict(C1=150.0, C2=6000.0, D1=1e-3))
+    out = fit.least_squares()
+    d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])
+    assert d["recommended"] == "inclusion"
+    seen = []
+
+    def trackers(objective, params):
+        seen.append(dict(params))
+        return artefact
+    vetoed = confirm_by_tracker_response(d, obj, out["params"], fit.names, fit.log_scale, trackers)
+    assert seen == [out["params"]]
+    assert vetoed["recommended"] == "none" and "inclusion" in vetoed["vetoed"]
+    assert "inclusion" not in vetoed["eligible"] + vetoed["significant"]
+    assert vetoed["tracker_check"]["effects"]["inclusion"]["p_value"] > 0.01
+    assert vetoed["n_solves"] == d["n_solves"] + 3
+    confirmed = confirm_by_tracker_response(d, obj, out["params"], fit.names, fit.log_scale,
+                                            lambda objective, params: np.zeros_like(artefact))
+    assert confirmed["recommended"] == "inclusion" and confirmed["vetoed"] == {}
+    assert confirmed["tracker_check"]["effects"]["inclusion"]["p_value"] == pytest.approx(d["rows"][0]["p_value"], rel=1e-6)

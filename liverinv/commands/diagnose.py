@@ -49,8 +49,8 @@ def objective_of_fit(fit, bundle, flow, mesh, model_mesh=None, observation=None,
 
 def run(args) -> int:
     from ..cli import UserError
-    from ..diagnose.files import diagnosis_dataset, explain, imaging_calibration
-    from ..diagnose.score import diagnose
+    from ..diagnose.files import diagnosis_dataset, explain, imaging_calibration, tracker_error_for
+    from ..diagnose.score import confirm_by_tracker_response, diagnose
     from ..diagnose.splits import SPLIT_MEANING
     from ..fileio import write_netcdf
     from ..laws import PARAMS
@@ -60,8 +60,12 @@ def run(args) -> int:
     names = list(params)
     calibration = imaging_calibration(args.bundle)
     try:
-        d = diagnose(obj, params, names, [PARAMS[n].scale == "log" for n in names], float(ds.phi_vol), args.effects,
-                     alpha=calibration["alpha"])
+        log_scale = [PARAMS[n].scale == "log" for n in names]
+        d = diagnose(obj, params, names, log_scale, float(ds.phi_vol), args.effects, alpha=calibration["alpha"])
+        if calibration["confirm_geometric"]:
+            d = confirm_by_tracker_response(d, obj, params, names, log_scale,
+                                            tracker_error_for(args.bundle, args.flow, args.mesh),
+                                            alpha=calibration["alpha"])
     except (ValueError, KeyError) as e:
         raise UserError(str(e)) from None
     caveat = calibration["caveat"]

@@ -41,7 +41,7 @@ def run(args) -> int:
     from ..cli import UserError
     from ..diagnose.discover import discover
     from ..diagnose.effects import KAPPA_SECANTS
-    from ..diagnose.files import discovery_dataset, imaging_calibration
+    from ..diagnose.files import discovery_dataset, imaging_calibration, tracker_error_for
     from ..fileio import write_netcdf
     from ..identify.setup import objective_from_files
     from ..laws import LawError, get_law
@@ -82,7 +82,9 @@ def run(args) -> int:
         out = discover(objective_on(args.model_mesh), args.law, start, args.max_steps,
                        progress=lambda rec: bar.update(1), fixed=fixed,
                        final_objective_for=objective_on(final_mesh) if final_mesh else None,
-                       alpha=calibration["alpha"])
+                       alpha=calibration["alpha"],
+                       tracker_error=tracker_error_for(args.bundle, args.flow, args.mesh)
+                       if calibration["confirm_geometric"] else None)
     except ValueError as e:
         raise UserError(str(e)) from None
     finally:
@@ -99,7 +101,10 @@ def run(args) -> int:
                                     "effects pass, the best 3 and their rivals are refitted for 8 solves each, from "
                                     "the second step also in place of an earlier addition's rival, and the lowest Phi "
                                     "is added (liverinv.diagnose.discover.N_TRIALS, TRIAL_EVALUATIONS); an inclusion's "
-                                    "sphere is refined on a 2.5 mm grid first; an addition whose refit lowers Phi by "
+                                    "sphere is refined on a 2.5 mm grid first" + ("; on these warped volumes an "
+                                    "inclusion must also pass on the tracked motion less the tracker's response to the "
+                                    "fitted model (liverinv.diagnose.score.confirm_by_tracker_response)"
+                                    if calibration["confirm_geometric"] else "") + "; an addition whose refit lowers Phi by "
                                     "less than 1 % of Phi_vol is not kept; a record of more than 61 frames is "
                                     "searched (multi-start, trials) on frame pairs merged pairs // 30 at a time "
                                     "and every reported fit finished on all frames "

@@ -12,7 +12,7 @@ from ..fileio import provenance
 from .effects import CATALOG, KAPPA_SECANTS
 from .splits import SPLIT_MEANING
 
-__all__ = ["diagnosis_dataset", "discovery_dataset", "discovery_objective", "explain", "imaging_calibration"]
+__all__ = ["diagnosis_dataset", "discovery_dataset", "discovery_objective", "explain", "imaging_calibration", "tracker_error_for"]
 
 #: the diagnoses' level on warped volumes: on 3 warped elastic nulls (benchmarks/hidden_effects.py
 #: --mode warp, speckle seeds 6-8) an effect passed at p 0.0051-0.0053 each time, where the true
@@ -21,9 +21,11 @@ WARPED_ALPHA = 1e-4
 WARPED_CAVEAT = ("the bundle's volumes were made by warping its first volume (liverinv synthesize, mode warp): "
                  "the tracker's own error is systematic there (the texture deforms with the tissue) and passes "
                  "for an effect at the usual level (each of 3 warped elastic null data sets had one at p 0.005, "
-                 f"predicted drop 1.4-2.6 %), so an effect needs p < {WARPED_ALPHA:g}; a fitted inclusion may "
-                 "still be the tracker's (warped PSR data gained a stiff sphere under the punch). Moved-scatterer "
-                 "volumes (mode scatter) are what the diagnosis was validated on")
+                 f"predicted drop 1.4-2.6 %), so an effect needs p < {WARPED_ALPHA:g}; and a sphere of other "
+                 "stiffness under the punch can be the tracker's at any level (warped Darcy-flow data gained one), so "
+                 "an inclusion must also pass on the tracked motion less the tracker's response to the fitted model "
+                 "(score.confirm_by_tracker_response). Moved-scatterer volumes (mode scatter) are what the "
+                 "diagnosis was validated on")
 
 
 def imaging_calibration(bundle) -> dict:
@@ -39,8 +41,23 @@ def imaging_calibration(bundle) -> dict:
     except (TypeError, ValueError, AttributeError):
         mode = None
     if mode == "warp":
-        return dict(alpha=WARPED_ALPHA, caveat=WARPED_CAVEAT)
-    return dict(alpha=ALPHA, caveat="")
+        return dict(alpha=WARPED_ALPHA, caveat=WARPED_CAVEAT, confirm_geometric=True)
+    return dict(alpha=ALPHA, caveat="", confirm_geometric=False)
+
+
+def tracker_error_for(bundle, flow, mesh):
+    """`tracker_error(objective, params)` for `score.confirm_by_tracker_response` on the data
+    at these paths (the bundle, its tracked flow, the tracking mesh): the tracker's response
+    to the model's motion less the observation operator's prediction of it."""
+    from ..identify.response import tracker_error
+    from ..imaging.bundle import open_bundle
+    from ..mesh import read_mesh
+
+    def error(objective, params):
+        with open_bundle(bundle) as b:
+            return tracker_error(objective, params, b, xr.load_dataset(flow, engine="h5netcdf"),
+                                 read_mesh(mesh, required=()))
+    return error
 
 
 def _fmt(v) -> str:
@@ -56,7 +73,8 @@ def explain(d: dict, n=3) -> str:
             est = ("; estimate from the secant to " + ("its full size " if CATALOG[row["effect"]].far is not None
                                                        else "the best point of its scan ")
                    if row.get("secant") else "; one-step estimate ") + est
-        verdict = ("recommended" if row["effect"] == d["recommended"] else
+        verdict = (f"not recommended: it passes here, but {d['vetoed'][row['effect']]}" if row["effect"] in d.get("vetoed", {}) else
+                   "recommended" if row["effect"] == d["recommended"] else
                    "also passes the test (discover refits it as a trial)" if row["effect"] in d["eligible"] else
                    "significant below the drop threshold (discover refits it as a trial when an effect is "
                    "recommended)" if row["effect"] in d.get("significant", ()) else
@@ -117,7 +135,8 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
     ds.attrs = provenance(recommended=d["recommended"], alpha=d["alpha"], min_drop=d["min_drop"], scan=d["scan"],
                           not_tested=d["not_tested"], n_directions=d["n_directions"], wall_s=d["wall_s"],
                           phi=d["phi"], phi_vol=d["phi_vol"], phi_ind=d["phi_ind"], explanation=explain(d),
-                          n_solves=d["n_solves"],
+                          n_solves=d["n_solves"], vetoed=json.dumps(d.get("vetoed", {})),
+                          tracker_check=json.dumps(d.get("tracker_check", {})),
                           method="score tests at the null from one forward solve with sensitivities, orthogonal "
                                  "to the fitted parameters (and secants to the full size of the boundary effects, "
                                  "one solve each, and to Darcy flow at kappa " + ", ".join(f"{k:g}" for k in KAPPA_SECANTS)
@@ -183,6 +202,9 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
                       {"long_name": "what to know before trusting this step's fit: parameters at a bound, "
                                     "parameters the data do not determine (relative SD over 10 %)"}),
             recommended=("step", [s["diagnosis"]["recommended"] for s in steps]),
+            vetoed=("step", [json.dumps(s["diagnosis"].get("vetoed", {})) for s in steps],
+                    {"long_name": "effects that passed this step's test but not on the tracked motion less the "
+                                  "tracker's response to the fitted model (warped volumes), with why (JSON)"}),
             tried=("step", [json.dumps(s.get("trials", {})) for s in steps],
                    {"long_name": "candidates refitted after this step's diagnosis, with their Phi and Phi_vol "
                                  "(JSON); the lowest Phi is added at the next step"}),
