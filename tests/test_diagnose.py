@@ -453,4 +453,5 @@ def test_a_sphere_that_is_the_trackers_is_vetoed_and_a_true_one_confirmed(tiny):
     confirmed = confirm_by_tracker_response(d, obj, out["params"], fit.names, fit.log_scale,
                                             lambda objective, params: np.zeros_like(artefact))
     assert confirmed["recommended"] == "inclusion" and confirmed["vetoed"] == {}
-    assert confirmed["tracker_check"]["effects"]["inclusion"]["p_value"] == pytest.approx(d["rows"][0]["p_value"], rel=1e-6)
+    check = confirmed["tracker_check"]["effects"]["inclusion"]
+    assert check["p_value"] == pytest.approx(d["rows"][0]["p_value"], rel=1e-6)

@@ -164,8 +164,8 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     at the same noise levels (`final_fit`); `alpha`: the diagnoses' level
     (`files.imaging_calibration`); `tracker_error(objective, params)`: where given (warped
     volumes, `files.tracker_error_for`), an inclusion that passes is tested again on the tracked
-    motion less the tracker's response to the fit (`score.confirm_by_tracker_response`). Returns the steps (law, added effect, fit and diagnosis
-    figures) and the final fit."""
+    motion less the tracker's response to the fit (`score.confirm_by_tracker_response`).
+    Returns the steps (law, added effect, fit and diagnosis figures) and the final fit."""
     user_fixed = dict(fixed or {})
     held = []          # fitted inclusions added so far: every later model holds their spheres
 

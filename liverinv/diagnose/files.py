@@ -12,7 +12,8 @@ from ..fileio import provenance
 from .effects import CATALOG, KAPPA_SECANTS
 from .splits import SPLIT_MEANING
 
-__all__ = ["diagnosis_dataset", "discovery_dataset", "discovery_objective", "explain", "imaging_calibration", "tracker_error_for"]
+__all__ = ["diagnosis_dataset", "discovery_dataset", "discovery_objective", "explain", "imaging_calibration",
+           "tracker_error_for"]
 
 #: the diagnoses' level on warped volumes: on 3 warped elastic nulls (benchmarks/hidden_effects.py
 #: --mode warp, speckle seeds 6-8) an effect passed at p 0.0051-0.0053 each time, where the true
@@ -73,7 +74,8 @@ def explain(d: dict, n=3) -> str:
             est = ("; estimate from the secant to " + ("its full size " if CATALOG[row["effect"]].far is not None
                                                        else "the best point of its scan ")
                    if row.get("secant") else "; one-step estimate ") + est
-        verdict = (f"not recommended: it passes here, but {d['vetoed'][row['effect']]}" if row["effect"] in d.get("vetoed", {}) else
+        vetoed = d.get("vetoed", {}).get(row["effect"])
+        verdict = (f"not recommended: it passes here, but {vetoed}" if vetoed else
                    "recommended" if row["effect"] == d["recommended"] else
                    "also passes the test (discover refits it as a trial)" if row["effect"] in d["eligible"] else
                    "significant below the drop threshold (discover refits it as a trial when an effect is "

@@ -220,8 +220,9 @@ def confirm_by_tracker_response(d: dict, objective, params: dict, fitted: list, 
         check[e] = dict(p_value=row["p_value"], predicted_drop=row["predicted_drop"], estimate=row["estimate"],
                         passes=again["recommended"] == e)
         if not check[e]["passes"]:
-            vetoed[e] = (f"not on the tracked motion less the tracker's own error at the fit (p = {row['p_value']:.2g}, "
-                         f"predicted drop {100 * row['predicted_drop']:.1f} % there): taken for the tracker's")
+            vetoed[e] = (f"not on the tracked motion less the tracker's own error at the fit "
+                         f"(p = {row['p_value']:.2g}, predicted drop {100 * row['predicted_drop']:.1f} % there): "
+                         "taken for the tracker's")
     eligible = [e for e in d["eligible"] if e not in vetoed]
     return dict(d, eligible=eligible, significant=[e for e in d["significant"] if e not in vetoed],
                 recommended=eligible[0] if eligible else "none", vetoed=vetoed,
