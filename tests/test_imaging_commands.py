@@ -310,21 +310,22 @@ def test_a_diagnosis_of_warped_volumes_is_held_to_a_stricter_level_with_its_cave
     """On warped volumes (synthesize's default) the tracker's error is systematic and passed for
     an effect at p 0.005 on each of 3 nulls: their diagnoses need p < 1e-4 and carry the caveat;
     a bundle whose imaging record says otherwise, or that has none (measured data), keeps the
-    usual level and no caveat."""
+    usual level and no caveat. Only warped data have an inclusion checked against the
+    tracker's response (`score.confirm_by_tracker_response`)."""
     import h5py
     from liverinv.diagnose.files import WARPED_ALPHA, WARPED_CAVEAT, imaging_calibration
     from liverinv.diagnose.score import ALPHA
     bundle, _ = synthesized
-    assert imaging_calibration(bundle) == dict(alpha=WARPED_ALPHA, caveat=WARPED_CAVEAT)
+    assert imaging_calibration(bundle) == dict(alpha=WARPED_ALPHA, caveat=WARPED_CAVEAT, confirm_geometric=True)
     assert WARPED_ALPHA == 1e-4 < ALPHA and "3 warped elastic null" in WARPED_CAVEAT
     other = tmp_path / "b.h5"
     other.write_bytes(bundle.read_bytes())
     with h5py.File(other, "a") as f:
         f.attrs["imaging"] = json.dumps({**json.loads(f.attrs["imaging"]), "mode": "scatter"})
-    assert imaging_calibration(other) == dict(alpha=ALPHA, caveat="")
+    assert imaging_calibration(other) == dict(alpha=ALPHA, caveat="", confirm_geometric=False)
     with h5py.File(other, "a") as f:
         del f.attrs["imaging"]
-    assert imaging_calibration(other) == dict(alpha=ALPHA, caveat="")
+    assert imaging_calibration(other) == dict(alpha=ALPHA, caveat="", confirm_geometric=False)
 
 
 def test_fit_continues_on_the_tracker_response(tmp_path, synthesized):
@@ -346,6 +347,13 @@ def test_fit_continues_on_the_tracker_response(tmp_path, synthesized):
     assert 0 < rec["error_rms_m"] < 1e-4
     assert ds.history_params.sel(param="C1").values[0] == pytest.approx(rec["first_stage"]["C1"], rel=1e-12)
     assert (tmp_path / "ck" / "tracker-response" / "evaluations.jsonl").is_file()
+    # the diagnosis's check of an inclusion on warped data computes the same error at those parameters
+    from liverinv.commands.diagnose import objective_of_fit
+    from liverinv.diagnose.files import tracker_error_for
+    obj, _, _ = objective_of_fit(out, bundle, flow, MESH)
+    err = tracker_error_for(bundle, flow, MESH)(obj, rec["first_stage"])
+    assert err.shape == obj.data.u_of.shape
+    assert np.sqrt(np.mean(err ** 2)) == pytest.approx(rec["error_rms_m"], rel=1e-6)
     with pytest.raises(UserError, match="observation tracker"):
         a = p.parse_args(base + ["--observation", "nodes"])
         a.func(a)
