@@ -455,3 +455,10 @@ def test_a_sphere_that_is_the_trackers_is_vetoed_and_a_true_one_confirmed(tiny):
     assert confirmed["recommended"] == "inclusion" and confirmed["vetoed"] == {}
     check = confirmed["tracker_check"]["effects"]["inclusion"]
     assert check["p_value"] == pytest.approx(d["rows"][0]["p_value"], rel=1e-6)
+    # DIAG.nc says what was vetoed and what the check found
+    from liverinv.diagnose.files import diagnosis_dataset
+    import json
+    attrs = diagnosis_dataset(vetoed).attrs
+    assert json.loads(attrs["vetoed"]) == vetoed["vetoed"] and attrs["recommended"] == "none"
+    assert json.loads(attrs["tracker_check"])["effects"]["inclusion"]["passes"] is False
+    assert "taken for the tracker's" in attrs["explanation"]

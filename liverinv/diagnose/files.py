@@ -207,6 +207,10 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
             vetoed=("step", [json.dumps(s["diagnosis"].get("vetoed", {})) for s in steps],
                     {"long_name": "effects that passed this step's test but not on the tracked motion less the "
                                   "tracker's response to the fitted model (warped volumes), with why (JSON)"}),
+            tracker_check=("step", [json.dumps(s["diagnosis"].get("tracker_check", {})) for s in steps],
+                           {"long_name": "the inclusion's test on the tracked motion less the tracker's response "
+                                         "to the fitted model: p-value, predicted drop, estimate (JSON; warped "
+                                         "volumes, when an inclusion was in play)"}),
             tried=("step", [json.dumps(s.get("trials", {})) for s in steps],
                    {"long_name": "candidates refitted after this step's diagnosis, with their Phi and Phi_vol "
                                  "(JSON); the lowest Phi is added at the next step"}),
