@@ -179,6 +179,14 @@ def test_reduced_quick_study_end_to_end(tmp_path):
     assert list(disc.added.values) == [""] and "nothing recommended" in disc.attrs["stopped_because"]
     assert {"phi", "phi_vol", "phi_ind", "predicted_drop", "params"} <= set(disc.data_vars)
     assert json.loads(disc.params.values[0]).keys() >= {"C1", "C2", "D1"}
+    # warped volumes: the reported parameters are fitted on the motion corrected for the tracker's response
+    response = json.loads(disc.attrs["tracker_response"])
+    assert response["mesh"] == "tracking mesh" and response["n_solves"] >= 2     # final_mesh none: the only one
+    assert response["params_before"] == pytest.approx(json.loads(disc.params_tracking_mesh.values[-1]))
+    reported = json.loads(disc.params.values[-1])
+    assert reported != response["params_before"]
+    for k, v in dict(C1=200.0, C2=5000.0, D1=1.5e-3).items():
+        assert reported[k] == pytest.approx(v, rel=0.05), (k, reported)
     from liverinv.cli import main
     data = next((res / "data").glob("*/bundle.h5")).parent
     rc = main(["diagnose", "--fit", str(res / "mini/fits/elastic_low_least-squares.nc"), "--bundle",

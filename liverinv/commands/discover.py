@@ -112,7 +112,12 @@ def run(args) -> int:
                                     "and every reported fit finished on all frames "
                                     "(liverinv.identify.search.SEARCH_PAIRS); the last step's law refitted on a "
                                     "finer model mesh (--final-mesh auto: the tracking cylinder with the medium "
-                                    "preset), whose parameters are the last step's params",
+                                    "preset), whose parameters are the last step's params"
+                                    + ("; on these warped volumes the last step's law is then refitted on the "
+                                       "tracked motion less the tracker's response to its fit, on the tracking and "
+                                       "the finer mesh, the lower Phi taken and balanced from the data's own noise "
+                                       "levels (liverinv.diagnose.discover.corrected_final_fit): its parameters are "
+                                       "the last step's params" if calibration["confirm_geometric"] else ""),
                            inclusions=json.dumps([i.to_json() for i in inclusions]), fixed=json.dumps(fixed),
                            final_model_mesh=str(final_mesh or ""), final_model_mesh_note=final_note,
                            caveat=calibration["caveat"], alpha=calibration["alpha"])
@@ -129,14 +134,21 @@ def run(args) -> int:
         print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
         for w in filter(None, str(ds.warnings.values[s]).split("\n")):
             print(f"warning: step {s} ({ds.law.values[s]}): {w}", file=sys.stderr)
+    response = json.loads(ds.attrs.get("tracker_response") or "{}")
     if final_mesh:
         print(f"final fit on {final_mesh} ({final_note}): Phi {ds.attrs['final_phi']:.5g} (tracking mesh "
               f"{float(ds.phi[-1]):.5g}) in {ds.attrs['final_n_solves']} solves; "
-              + ("its parameters:" if ds.attrs["final_kept"] else "not kept, the tracking mesh's parameters:"))
-        value, sd = json.loads(str(ds.params.values[-1])), json.loads(str(ds.param_sd.values[-1]))
-        print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
+              + ("its parameters" if ds.attrs["final_kept"] else "not kept, the tracking mesh's parameters")
+              + (" were then corrected for the tracker's response:" if response.get("mesh") else ":"))
     else:
         print(f"no final fit on a finer mesh: {final_note}")
+    if response.get("mesh"):
+        print(f"refitted on the tracked motion less the tracker's response to the fit (warped volumes; error RMS "
+              f"{1e6 * response['error_rms_m'][response['mesh']]:.3g} um), on the {response['mesh']}, in {response['n_solves']} "
+              f"solves ({response['wall_s']:.0f} s); the reported parameters:")
+    if final_mesh or response.get("mesh"):
+        value, sd = json.loads(str(ds.params.values[-1])), json.loads(str(ds.param_sd.values[-1]))
+        print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
     if ds.attrs["caveat"]:
         print(f"warning: {ds.attrs['caveat']}", file=sys.stderr)
     print(f"wrote {args.out}: {ds.attrs['stopped_because']}")

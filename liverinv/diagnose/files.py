@@ -54,10 +54,17 @@ def tracker_error_for(bundle, flow, mesh):
     from ..imaging.bundle import open_bundle
     from ..mesh import read_mesh
 
+    last = {}      # the latest response: the check of the last step and its corrected fit share it
+
     def error(objective, params):
-        with open_bundle(bundle) as b:
-            return tracker_error(objective, params, b, xr.load_dataset(flow, engine="h5netcdf"),
-                                 read_mesh(mesh, required=()))
+        key = (id(objective), objective.law, json.dumps(params, sort_keys=True))
+        if key not in last:
+            with open_bundle(bundle) as b:
+                e = tracker_error(objective, params, b, xr.load_dataset(flow, engine="h5netcdf"),
+                                  read_mesh(mesh, required=()))
+            last.clear()
+            last[key] = e
+        return last[key]
     return error
 
 
@@ -151,8 +158,10 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
     """The DISCOVERY.nc of `discover`'s result. With a final fit on a finer model mesh that
     explains the data at least as well (attribute `final_kept`), the last step's `params` and
     `param_sd` are that fit's (the tracking mesh's stay in `params_tracking_mesh`; the final
-    fit's are also in the attribute `final_params`); Phi of every step stays on the tracking
-    mesh, one scale."""
+    fit's are also in the attribute `final_params`); on warped volumes they are the fit on the
+    tracked motion less the tracker's response (attribute `tracker_response`: which mesh, the
+    error's RMS, the parameters before). Phi of every step stays on the tracking mesh, one
+    scale."""
     steps = out["steps"]
     nxt = [s.get("next", {}) for s in steps]
     tracking = [s["params"] for s in steps]
@@ -160,6 +169,16 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
     steps = [dict(s) for s in steps]
     if final.get("params") and final.get("kept", True):
         steps[-1].update(params=final["params"], sd=final["sd"])
+    corrected = out.get("corrected") or {}
+    if corrected.get("params"):
+        steps[-1].update(params=corrected["params"], sd=corrected["sd"])
+    if corrected:
+        steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + list(corrected.get("warnings", []))
+        attrs = dict(attrs, tracker_response=json.dumps(
+            {k: corrected.get(k) for k in ("mesh", "error_rms_m", "phi_common", "phi", "phi_vol", "phi_ind",
+                                           "noise", "n_solves", "wall_s") if k in corrected}
+            | {"params_before": (final["params"] if final.get("params") and final.get("kept", True)
+                                 else tracking[-1])}))
     if final:
         steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + list(final.get("warnings", []))
         attrs = dict(attrs, final_kept=int(bool(final.get("params")) and final.get("kept", True)),
@@ -196,7 +215,9 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
             params_tracking_mesh=("step", [json.dumps(p) for p in tracking],
                                   {"long_name": "the parameters fitted on the tracking mesh (JSON, SI); the last "
                                                 "step's `params` are the final fit's on the finer model mesh "
-                                                "where one ran (attribute final_model_mesh)"}),
+                                                "where one ran (attribute final_model_mesh), or on warped "
+                                                "volumes the fit on the motion corrected for the tracker's "
+                                                "response (attribute tracker_response)"}),
             param_sd=("step", [json.dumps(s.get("sd", {})) for s in steps],
                       {"long_name": "standard deviation of each fitted parameter at this step (JSON, SI; "
                                     "Gauss-Newton, cluster-robust, from the step's diagnosis solve)"}),
