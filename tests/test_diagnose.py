@@ -419,6 +419,19 @@ def test_trial_rows_take_the_recommended_then_the_other_significant_candidates_o
     d3 = dict(d, significant=["bulk_relaxation", "nonlinear_bulk", "inclusion"])
     assert [r["tag"] for r in trial_rows(d3, n=3)] == [0, 5, 1, 2]
     assert [r["tag"] for r in trial_rows(dict(d3, eligible=["nonlinear_bulk"], significant=[]))] == [5]
+    # under the warped volumes' strict level, the largest predicted drop that passes only the
+    # nominal level is refitted too (not one the tracker check vetoed, nor one under 1 %)
+    from liverinv.diagnose.score import ALPHA, MIN_DROP
+    graded = [dict(effect="strain_stiffening", tag=6, p_value=2e-4, physical=True, predicted_drop=0.82),
+              dict(effect="inclusion", tag=1, p_value=1e-60, physical=True, predicted_drop=0.61),
+              dict(effect="nonlinear_bulk", tag=5, p_value=3e-4, physical=True, predicted_drop=0.51),
+              dict(effect="bottom_slip", tag=4, p_value=0.02, physical=True, predicted_drop=0.3)]
+    strict = dict(rows=graded, eligible=["inclusion"], significant=["inclusion"], alpha=1e-4, min_drop=MIN_DROP)
+    assert [r["tag"] for r in trial_rows(strict)] == [1, 6]
+    assert [r["tag"] for r in trial_rows(dict(strict, vetoed={"strain_stiffening": "the tracker's"}))] == [1, 5]
+    assert [r["tag"] for r in trial_rows(dict(strict, alpha=ALPHA))] == [1]
+    low = [dict(r, predicted_drop=MIN_DROP / 2) if r["tag"] in (5, 6) else r for r in graded]
+    assert [r["tag"] for r in trial_rows(dict(strict, rows=low))] == [1]
 
 
 def test_explain_gives_each_candidate_its_own_verdict():
