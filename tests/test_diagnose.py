@@ -308,6 +308,14 @@ def test_on_warped_volumes_the_reported_parameters_are_fitted_on_the_corrected_m
     assert json.loads(str(ds.params.values[-1])) == pytest.approx(corrected["params"])
     record = json.loads(ds.attrs["tracker_response"])
     assert record["mesh"] == corrected["mesh"] and record["params_before"] == pytest.approx(out["final"]["params"])
+    # a final fit not kept by the uncorrected keep rule: the corrected fit is still reported,
+    # without the keep rule's word that the tracking mesh's parameters stand
+    rejected = dict(out, final=dict(out["final"], kept=False, warnings=[
+        "the final fit on the finer model mesh explains the data worse (Phi 2 against 1): ..."]))
+    ds = discovery_dataset(rejected)
+    assert json.loads(str(ds.params.values[-1])) == pytest.approx(corrected["params"])
+    assert "explains the data worse" not in str(ds.warnings.values[-1])
+    assert json.loads(ds.attrs["tracker_response"])["params_before"] == pytest.approx(step["params"])
 
 
 @pytest.mark.slow

@@ -138,14 +138,14 @@ def run(args) -> int:
     if final_mesh:
         print(f"final fit on {final_mesh} ({final_note}): Phi {ds.attrs['final_phi']:.5g} (tracking mesh "
               f"{float(ds.phi[-1]):.5g}) in {ds.attrs['final_n_solves']} solves; "
-              + ("its parameters" if ds.attrs["final_kept"] else "not kept, the tracking mesh's parameters")
-              + (" were then corrected for the tracker's response:" if response.get("mesh") else ":"))
+              + ("; its Phi is not comparable on warped volumes, see below" if response.get("mesh") else
+                 "; its parameters:" if ds.attrs["final_kept"] else "; not kept, the tracking mesh's parameters:"))
     else:
         print(f"no final fit on a finer mesh: {final_note}")
     if response.get("mesh"):
         print(f"refitted on the tracked motion less the tracker's response to the fit (warped volumes; error RMS "
-              f"{1e6 * response['error_rms_m'][response['mesh']]:.3g} um), on the {response['mesh']}, in {response['n_solves']} "
-              f"solves ({response['wall_s']:.0f} s); the reported parameters:")
+              f"{1e6 * response['error_rms_m'][response['mesh']]:.3g} um), on the {response['mesh']} (its Phi the lower "
+              f"there), in {response['n_solves']} solves ({response['wall_s']:.0f} s); the reported parameters:")
     if final_mesh or response.get("mesh"):
         value, sd = json.loads(str(ds.params.values[-1])), json.loads(str(ds.param_sd.values[-1]))
         print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))

@@ -392,7 +392,7 @@ def corrected_final_fit(candidates, tracker_error, progress=None) -> dict:
         err = tracker_error(obj, params)
         fit = Fit(with_corrected_data(obj, err), params, progress=progress)
         best = fit.least_squares(max_evaluations=CORRECTED_EVALUATIONS)["best"]
-        n_solves += len(fit.history) + 1             # the response's own solve
+        n_solves += len(fit.history)                 # (each response solves the model once more)
         errors[label] = float(np.sqrt(np.mean(err ** 2)))
         if best is not None:
             common[label] = (best, err, own)

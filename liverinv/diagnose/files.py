@@ -180,7 +180,9 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
             | {"params_before": (final["params"] if final.get("params") and final.get("kept", True)
                                  else tracking[-1])}))
     if final:
-        steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + list(final.get("warnings", []))
+        # on warped volumes the corrected fit, not the keep rule, chose the mesh
+        said = [w for w in final.get("warnings", []) if not (corrected.get("params") and "explains the data worse" in w)]
+        steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + said
         attrs = dict(attrs, final_kept=int(bool(final.get("params")) and final.get("kept", True)),
                      final_params=json.dumps(final.get("params", {})),
                      final_phi=float(final["phi"]), final_phi_vol=float(final["phi_vol"]),
