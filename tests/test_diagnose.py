@@ -263,6 +263,22 @@ def test_final_fit_on_the_same_mesh_stays_at_the_optimum_and_fills_the_last_step
     assert "final fit on the finer model mesh failed (no such mesh)" in str(ds.warnings.values[-1])
 
 
+def sphere_artefact_data(tiny):
+    """Homogeneous elastic data whose tracked motion carries a planted tracker error shaped
+    like a 3x stiffer 5 mm sphere under the punch (the motion difference such a sphere makes):
+    (measurements, the error (K, N, 3))."""
+    top = tiny.mesh.points[:, 2].max()
+    inc = {"center_m": [0.002, 0.0, top - 0.008], "radius_m": 0.005, "scale": {"C1": 3.0, "C2": 3.0}}
+    history = ramp_history(4e-3, 2e-3, frames=17, unload=True)
+    plain = tiny.run("elastic", E, history)
+    sphere = ForwardModel(tiny.mesh, inclusions=[inc]).run("elastic", E, history)
+    data = noisy_measurements(plain, 0)
+    idx = np.arange(0, len(plain.time), 2)
+    artefact = np.diff(sphere.u.values[idx] - plain.u.values[idx], axis=0)
+    data.u_of = data.u_of + artefact
+    return data, artefact
+
+
 def test_on_warped_volumes_the_reported_parameters_are_fitted_on_the_corrected_motion(tiny):
     """discover's last step refitted on the tracked motion less the tracker's response (warped
     volumes): elastic data whose tracked motion carries a planted tracker error (the motion
@@ -273,15 +289,7 @@ def test_on_warped_volumes_the_reported_parameters_are_fitted_on_the_corrected_m
 
     from liverinv.diagnose.discover import discover
     from liverinv.diagnose.files import discovery_dataset
-    top = tiny.mesh.points[:, 2].max()
-    inc = {"center_m": [0.002, 0.0, top - 0.008], "radius_m": 0.005, "scale": {"C1": 3.0, "C2": 3.0}}
-    history = ramp_history(4e-3, 2e-3, frames=17, unload=True)
-    plain = tiny.run("elastic", E, history)
-    sphere = ForwardModel(tiny.mesh, inclusions=[inc]).run("elastic", E, history)
-    data = noisy_measurements(plain, 0)
-    idx = np.arange(0, len(plain.time), 2)
-    artefact = np.diff(sphere.u.values[idx] - plain.u.values[idx], axis=0)
-    data.u_of = data.u_of + artefact
+    data, artefact = sphere_artefact_data(tiny)
     nm = NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {})
     seen = []
 
@@ -493,15 +501,7 @@ def test_a_sphere_that_is_the_trackers_is_vetoed_and_a_true_one_confirmed(tiny):
     tracker's response to the fitted model carries it), the check drops the sphere and nothing
     is recommended. Told the tracker adds nothing, the same sphere is confirmed."""
     from liverinv.diagnose.score import confirm_by_tracker_response
-    top = tiny.mesh.points[:, 2].max()
-    inc = {"center_m": [0.002, 0.0, top - 0.008], "radius_m": 0.005, "scale": {"C1": 3.0, "C2": 3.0}}
-    history = ramp_history(4e-3, 2e-3, frames=17, unload=True)
-    plain = tiny.run("elastic", E, history)
-    sphere = ForwardModel(tiny.mesh, inclusions=[inc]).run("elastic", E, history)
-    data = noisy_measurements(plain, 0)
-    idx = np.arange(0, len(plain.time), 2)
-    artefact = np.diff(sphere.u.values[idx] - plain.u.values[idx], axis=0)     # (K, N, 3)
-    data.u_of = data.u_of + artefact
+    data, artefact = sphere_artefact_data(tiny)
     obj = Objective(tiny, "elastic", data, noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
     fit = Fit(obj, dict(C1=150.0, C2=6000.0, D1=1e-3))
     out = fit.least_squares()
