@@ -182,12 +182,14 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     user_fixed = dict(fixed or {})
     held = []          # fitted inclusions added so far: every later model holds their spheres
 
-    def objective(law, fixed, noise, more=()):
-        obj = objective_for(law, fixed, noise)
+    def holding(obj, more=()):   # the objective with the fitted spheres (and `more`)
         if held or more:      # a copy: the caller's forward model may serve other objectives
             obj.forward = copy.copy(obj.forward)
             obj.forward.inclusions = [*obj.forward.inclusions, *held, *more]
         return obj
+
+    def objective(law, fixed, noise, more=()):
+        return holding(objective_for(law, fixed, noise), more)
 
     obj = objective(base_law, user_fixed, None)
     law = get_law(base_law)
@@ -315,12 +317,6 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
                                  actual_drop_vol=actual, actual_drop_phi=actual_phi,
                                  predicted_drop_vol=row["predicted_drop"],
                                  replaced=f"{swap[0]} -> {swap[1]}" if swap else "")
-    def holding(o):       # an objective of a finer mesh, with the fitted spheres
-        if held:
-            o.forward = copy.copy(o.forward)
-            o.forward.inclusions = [*o.forward.inclusions, *held]
-        return o
-
     final = None
     candidates = [("tracking mesh", obj, lambda: objective(current_law, fixed, None), dict(params))]
     if final_objective_for is not None:
@@ -383,7 +379,6 @@ def corrected_final_fit(candidates, tracker_error, progress=None) -> dict:
     absorbed). The diagnosis never sees the corrected motion: the correction's own first-order
     error is not what its test was calibrated on."""
     from ..identify.response import with_corrected_data
-    from .score import fitted_uncertainty
 
     t0 = time.perf_counter()
     common, errors = {}, {}
@@ -417,17 +412,23 @@ def corrected_final_fit(candidates, tracker_error, progress=None) -> dict:
                            "parameters are the uncorrected fit's"]
         out["wall_s"] = time.perf_counter() - t0
         return out
+    out.update(fit_report(fit, best), mesh=label, noise=fit.obj.noise.to_json() if fit.obj.noise is not None else "",
+               wall_s=time.perf_counter() - t0)
+    return out
+
+
+def fit_report(fit, best) -> dict:
+    """The parameters, SDs (Gauss-Newton, cluster-robust), warnings and Phi of a fit's optimum
+    `best`, as a discovery reports them."""
+    from .score import fitted_uncertainty
+
     J = best.get("jacobian")
     if J is None:
         J, _ = fit.fd_jacobian(np.asarray(best["x"]), purpose="uncertainty", fd_purpose="uncertainty")
     unc = fitted_uncertainty(fit.obj, best["params"], fit.names, fit.log_scale, J, best["residual"],
                              fit.obj.residual_groups())
-    out.update(params=dict(best["params"]), sd=unc["sd"], mesh=label,
-               warnings=out["warnings"] + step_warnings(fit, best["params"], unc),
-               phi=float(best["phi"]), phi_vol=float(best["phi_vol"]), phi_ind=float(best["phi_ind"]),
-               noise=fit.obj.noise.to_json() if fit.obj.noise is not None else "",
-               wall_s=time.perf_counter() - t0)
-    return out
+    return dict(params=dict(best["params"]), sd=unc["sd"], warnings=step_warnings(fit, best["params"], unc),
+                phi=float(best["phi"]), phi_vol=float(best["phi_vol"]), phi_ind=float(best["phi_ind"]))
 
 
 def final_fit(objective, params, progress=None) -> dict:
@@ -438,8 +439,6 @@ def final_fit(objective, params, progress=None) -> dict:
     (fine truth, coarse tracking) the coarse model mesh, 4.6 % stiffer at the punch rim,
     biased C2 by -11 to -15 % (elastic nulls, 5 seeds; medium: within 2.7 %) and kappa by -12 %
     (PSR, seed 4; medium: -2 %). `params` empty when every solve failed."""
-    from .score import fitted_uncertainty
-
     t0 = time.perf_counter()
     fit, res = fit_law(objective, dict(params), design_points=0, progress=progress)
     best = res["best"]
@@ -449,13 +448,7 @@ def final_fit(objective, params, progress=None) -> dict:
         out["warnings"] = [f"the refit on the finer model mesh failed in {len(fit.history)} solves; the "
                            "parameters are the tracking mesh's"]
     else:
-        J = best.get("jacobian")
-        if J is None:
-            J, _ = fit.fd_jacobian(np.asarray(best["x"]), purpose="uncertainty", fd_purpose="uncertainty")
-        unc = fitted_uncertainty(objective, best["params"], fit.names, fit.log_scale, J, best["residual"],
-                                 objective.residual_groups())
-        out.update(params=dict(best["params"]), sd=unc["sd"], warnings=step_warnings(fit, best["params"], unc),
-                   phi=best["phi"], phi_vol=best["phi_vol"], phi_ind=best["phi_ind"])
+        out.update(fit_report(fit, best))
     out["n_solves"] = len(fit.history)
     out["wall_s"] = time.perf_counter() - t0
     return out
