@@ -84,7 +84,8 @@ def run(args) -> int:
                        final_objective_for=objective_on(final_mesh) if final_mesh else None,
                        alpha=calibration["alpha"],
                        tracker_error=tracker_error_for(args.bundle, args.flow, args.mesh)
-                       if calibration["confirm_geometric"] else None)
+                       if calibration["correct_final"] else None,
+                       confirm_inclusions=calibration["confirm_geometric"])
     except ValueError as e:
         raise UserError(str(e)) from None
     finally:
@@ -113,11 +114,11 @@ def run(args) -> int:
                                     "(liverinv.identify.search.SEARCH_PAIRS); the last step's law refitted on a "
                                     "finer model mesh (--final-mesh auto: the tracking cylinder with the medium "
                                     "preset), whose parameters are the last step's params"
-                                    + ("; on these warped volumes the last step's law is then refitted on the "
+                                    + ("; on these synthesized volumes the last step's law is then refitted on the "
                                        "tracked motion less the tracker's response to its fit, on the tracking and "
                                        "the finer mesh, the lower Phi taken and balanced from the data's own noise "
                                        "levels (liverinv.diagnose.discover.corrected_final_fit): its parameters are "
-                                       "the last step's params" if calibration["confirm_geometric"] else ""),
+                                       "the last step's params" if calibration["correct_final"] else ""),
                            inclusions=json.dumps([i.to_json() for i in inclusions]), fixed=json.dumps(fixed),
                            final_model_mesh=str(final_mesh or ""), final_model_mesh_note=final_note,
                            caveat=calibration["caveat"], alpha=calibration["alpha"])

@@ -168,16 +168,18 @@ def step_warnings(fit, params, uncertainty) -> list[str]:
 
 
 def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fixed=None,
-             final_objective_for=None, alpha=ALPHA, tracker_error=None) -> dict:
+             final_objective_for=None, alpha=ALPHA, tracker_error=None, confirm_inclusions=True) -> dict:
     """`objective_for(law, fixed, noise)` builds the objective of a law on the data (noise None:
     the data's own levels); `progress(rec)` is called after every forward solve of the fits;
     `fixed`: the user's values held fixed in the base law (and in every later law that has
     them, unless the added effect is made of them); `final_objective_for`, built like
     `objective_for` on a finer model mesh: the last step's law is refitted on it, warm-started,
     at the same noise levels (`final_fit`); `alpha`: the diagnoses' level
-    (`files.imaging_calibration`); `tracker_error(objective, params)`: where given (warped
-    volumes, `files.tracker_error_for`), an inclusion that passes is tested again on the tracked
-    motion less the tracker's response to the fit (`score.confirm_by_tracker_response`).
+    (`files.imaging_calibration`); `tracker_error(objective, params)`: where given (synthesized
+    volumes, `files.tracker_error_for`), the last step's law is refitted on the tracked motion
+    less the tracker's response to its fit (`corrected_final_fit`) and, with
+    `confirm_inclusions` (warped volumes), an inclusion that passes is tested again on that
+    corrected motion (`score.confirm_by_tracker_response`).
     Returns the steps (law, added effect, fit and diagnosis figures) and the final fit."""
     user_fixed = dict(fixed or {})
     held = []          # fitted inclusions added so far: every later model holds their spheres
@@ -221,7 +223,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     stopped = f"reached --max-steps {max_steps}"
     for step in range(max_steps + 1):
         d = diagnose(obj, params, fit.names, fit.log_scale, rec["phi_vol"], alpha=alpha)
-        if tracker_error is not None:
+        if tracker_error is not None and confirm_inclusions:
             d = confirm_by_tracker_response(d, obj, params, fit.names, fit.log_scale, tracker_error, alpha=alpha)
         steps.append(dict(step=step, law=current_law, fixed=dict(fixed), added=added[-1] if added and step else "",
                           effects=list(added),

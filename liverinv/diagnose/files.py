@@ -32,18 +32,19 @@ WARPED_CAVEAT = ("the bundle's volumes were made by warping its first volume (li
 def imaging_calibration(bundle) -> dict:
     """The diagnoses' level `alpha` for the bundle at `bundle` (path) and what a user must know
     because of how its volumes were made (`caveat`): `WARPED_ALPHA` and `WARPED_CAVEAT` for
-    warped volumes; `score.ALPHA` and '' for moved scatterers and measured data."""
+    warped volumes; `score.ALPHA` and '' for moved scatterers and measured data. Whether an
+    inclusion must pass again on the motion corrected for the tracker's response
+    (`confirm_geometric`: warped volumes) and whether the last step's law is refitted on that
+    corrected motion (`correct_final`: volumes this package synthesized, whose imaging it can
+    render again; not measured data)."""
     from ..imaging.bundle import open_bundle
+    from ..imaging.response import bundle_imaging
     from .score import ALPHA
     with open_bundle(bundle) as b:
-        raw = b.attrs.get("imaging") or "{}"
-    try:
-        mode = json.loads(raw).get("mode")
-    except (TypeError, ValueError, AttributeError):
-        mode = None
+        mode = bundle_imaging(b).get("mode")
     if mode == "warp":
-        return dict(alpha=WARPED_ALPHA, caveat=WARPED_CAVEAT, confirm_geometric=True)
-    return dict(alpha=ALPHA, caveat="", confirm_geometric=False)
+        return dict(alpha=WARPED_ALPHA, caveat=WARPED_CAVEAT, confirm_geometric=True, correct_final=True)
+    return dict(alpha=ALPHA, caveat="", confirm_geometric=False, correct_final=mode == "scatter")
 
 
 def tracker_error_for(bundle, flow, mesh):

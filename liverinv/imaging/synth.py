@@ -41,7 +41,7 @@ from .weights import VoxelWeights
 
 log = logging.getLogger(__name__)
 
-__all__ = ["synthesize", "imaging_config", "PAPER_NOISE"]
+__all__ = ["synthesize", "imaging_config", "imaging_options", "PAPER_NOISE"]
 
 PAPER_NOISE = {"displacement_m": 3.9e-6, "force_N": 13e-3}   # section 2.1.1, with controller
 
@@ -75,6 +75,23 @@ def imaging_config(study: dict, source="study") -> dict:
         raise _err(f"{source}: imaging: noise_db and decorrelation apply to mode 'scatter'; "
                    "use bmode_noise with mode 'warp'")
     return im
+
+
+def imaging_options(im: dict, source="study", seed=None) -> ImagingOptions:
+    """The renderer's options of a filled-in `imaging:` section (`imaging_config`; a bundle's
+    `imaging` attribute), with another speckle `seed` where given."""
+    tr_cfg = dict(im.get("transducer") or {})
+    try:
+        transducer = Transducer(**{k: (tuple(v) if isinstance(v, list) else v)
+                                   for k, v in tr_cfg.items()})
+        return ImagingOptions(mode=im.get("mode", "warp"), seed=int(im.get("seed", 0) if seed is None else seed),
+                              scatterers_per_cell=float(im.get("scatterers_per_cell", 5.0)),
+                              bmode_noise=float(im.get("bmode_noise", 0.0)),
+                              noise_db=im.get("noise_db"),
+                              decorrelation=float(im.get("decorrelation", 0.0)),
+                              transducer=transducer)
+    except (TypeError, ValueError) as e:
+        raise _err(f"{source}: imaging: {e}") from None
 
 
 def make_grid(vol: dict, source="study") -> ImageGrid:
@@ -147,18 +164,7 @@ def synthesize(study: dict, base_dir, out, truth_out=None, source="study", truth
     """
     im = imaging_config(study, source)
     grid = make_grid(im["volume"], source)
-    tr_cfg = dict(im.get("transducer") or {})
-    try:
-        transducer = Transducer(**{k: (tuple(v) if isinstance(v, list) else v)
-                                   for k, v in tr_cfg.items()})
-        opts = ImagingOptions(mode=im["mode"], seed=int(im["seed"]),
-                              scatterers_per_cell=float(im.get("scatterers_per_cell", 5.0)),
-                              bmode_noise=float(im.get("bmode_noise", 0.0)),
-                              noise_db=im.get("noise_db"),
-                              decorrelation=float(im.get("decorrelation", 0.0)),
-                              transducer=transducer)
-    except (TypeError, ValueError) as e:
-        raise _err(f"{source}: imaging: {e}") from None
+    opts = imaging_options(im, source)
     ds = _truth(study, im, base_dir, source) if truth is None else truth
     t_sim = ds["time"].values
     times = _frame_times(study, im, base_dir, source, t_end=float(t_sim[-1]))
