@@ -10,6 +10,7 @@ import xarray as xr
 
 from ..fileio import provenance
 from .effects import CATALOG, KAPPA_SECANTS
+from .score import ALPHA
 from .splits import SPLIT_MEANING
 
 __all__ = ["diagnosis_dataset", "discovery_dataset", "discovery_objective", "explain", "imaging_calibration",
@@ -84,7 +85,9 @@ def explain(d: dict, n=3) -> str:
                    if row.get("secant") else "; one-step estimate ") + est
         vetoed = d.get("vetoed", {}).get(row["effect"])
         verdict = (f"not recommended: it passes here, but {vetoed}" if vetoed else
-                   "recommended" if row["effect"] == d["recommended"] else
+                   (f"recommended: an effect passed the strict level {d['alpha']:g} and this one has the largest "
+                    f"predicted drop of those that pass the nominal level {ALPHA:g}"
+                    if row["p_value"] >= d["alpha"] else "recommended") if row["effect"] == d["recommended"] else
                    "also passes the test (discover refits it as a trial)" if row["effect"] in d["eligible"] else
                    "significant below the drop threshold (discover refits it as a trial when an effect is "
                    "recommended)" if row["effect"] in d.get("significant", ()) else
