@@ -114,7 +114,7 @@ def run(args) -> int:
                                     "(liverinv.identify.search.SEARCH_PAIRS); the last step's law refitted on a "
                                     "finer model mesh (--final-mesh auto: the tracking cylinder with the medium "
                                     "preset), whose parameters are the last step's params"
-                                    + ("; on these synthesized volumes the last step's law is then refitted on the "
+                                    + ("; on these warped volumes the last step's law is then refitted on the "
                                        "tracked motion less the tracker's response to its fit, on the tracking and "
                                        "the finer mesh, the lower Phi taken and balanced from the data's own noise "
                                        "levels (liverinv.diagnose.discover.corrected_final_fit): its parameters are "
