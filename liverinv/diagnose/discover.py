@@ -175,7 +175,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     them, unless the added effect is made of them); `final_objective_for`, built like
     `objective_for` on a finer model mesh: the last step's law is refitted on it, warm-started,
     at the same noise levels (`final_fit`); `alpha`: the diagnoses' level
-    (`files.imaging_calibration`); `tracker_error(objective, params)`: where given (synthesized
+    (`files.imaging_calibration`); `tracker_error(objective, params)`: where given (warped
     volumes, `files.tracker_error_for`), the last step's law is refitted on the tracked motion
     less the tracker's response to its fit (`corrected_final_fit`) and, with
     `confirm_inclusions` (warped volumes), an inclusion that passes is tested again on that
