@@ -43,7 +43,6 @@ def imaging_calibration(bundle) -> dict:
     uncorrected), and their per-component gains made D1 +18 to +24 %."""
     from ..imaging.bundle import open_bundle
     from ..imaging.response import bundle_imaging
-    from .score import ALPHA
     with open_bundle(bundle) as b:
         mode = bundle_imaging(b).get("mode")
     if mode == "warp":
