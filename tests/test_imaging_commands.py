@@ -342,6 +342,29 @@ def test_tracker_response_on_moved_scatterers_renders_the_data_again(tmp_path, s
     assert np.abs(other - tracked).max() > 0.1 * scale
 
 
+def test_objectives_on_the_same_files_share_their_observation_operator(tmp_path, synthesized):
+    """`objective_from_files` keeps the latest operators (discover builds an objective per
+    trial, 8-10 s each on the coarse benchmark mesh): the same files give the same operator
+    object, a rewritten flow a new one, and both predict the same tracked motion."""
+    from liverinv.identify import setup
+    bundle, _ = synthesized
+    flow = tmp_path / "f.nc"
+    a = _parser().parse_args(["track", str(bundle), "--mesh", str(MESH), "--out", str(flow)])
+    assert a.func(a) == 0
+    setup._OBSERVATIONS.clear()
+    first, _ = setup.objective_from_files(bundle, flow, MESH, "elastic")
+    again, _ = setup.objective_from_files(bundle, flow, MESH, "SR")
+    assert again.observation is first.observation and len(setup._OBSERVATIONS) == 1
+    u = np.random.default_rng(0).standard_normal((2, first.forward.mesh.n_nodes, 3))
+    flow.write_bytes(flow.read_bytes())                  # the same content, a new file
+    import os
+    os.utime(flow, ns=(1, 1))
+    renewed, _ = setup.objective_from_files(bundle, flow, MESH, "elastic")
+    assert renewed.observation is not first.observation
+    np.testing.assert_allclose(renewed.observation(u), first.observation(u), rtol=1e-12, atol=1e-15)
+    assert len(setup._OBSERVATIONS) == setup.OBSERVATIONS_KEPT == 2
+
+
 def test_a_diagnosis_of_warped_volumes_is_held_to_a_stricter_level_with_its_caveat(tmp_path, synthesized):
     """On warped volumes (synthesize's default) the tracker's error is systematic and passed for
     an effect at p 0.005 on each of 3 nulls: their diagnoses need p < 1e-4 and carry the caveat;

@@ -12,6 +12,22 @@ __all__ = ["objective_from_files", "MIN_CONFIDENT_NODES"]
 MIN_CONFIDENT_NODES = 10   # fewer confident tracked nodes give no volumetric term worth the name
 
 
+#: observation operators kept for the next objective on the same files: `discover` builds an
+#: objective for every trial, swap and step (its base fit, the trials, the final fit on the finer
+#: mesh), and each operator took 8-10 s to build on the coarse benchmark mesh (1490 x 1490 nodes)
+OBSERVATIONS_KEPT = 2
+_OBSERVATIONS: dict = {}
+
+
+def _observation_key(*paths):
+    """The files' identity: resolved path, size and modification time of each."""
+    out = []
+    for p in paths:
+        st = Path(p).stat()
+        out.append((str(Path(p).resolve()), st.st_size, st.st_mtime_ns))
+    return tuple(out)
+
+
 def objective_from_files(bundle, flow, mesh, law, fixed=None, model_mesh=None, objective="likelihood",
                          observation=None, noise_force=None, noise_depth=None, noise_tracking=None,
                          quadrature_order=2, indenter_only=False, inclusions=()):
@@ -48,8 +64,14 @@ def objective_from_files(bundle, flow, mesh, law, fixed=None, model_mesh=None, o
         ind = b.indenter
         obs = None
         if observation == "tracker":
-            tracking_mesh = mesh if model_mesh else fm.mesh   # read once if the same
-            obs = tracking_observation(b, fl, tracking_mesh, fm.mesh)
+            key = _observation_key(bundle, flow, mesh, model_mesh or mesh)
+            obs = _OBSERVATIONS.pop(key, None)
+            if obs is None:
+                tracking_mesh = mesh if model_mesh else fm.mesh   # read once if the same
+                obs = tracking_observation(b, fl, tracking_mesh, fm.mesh)
+            _OBSERVATIONS[key] = obs                          # the latest last
+            while len(_OBSERVATIONS) > OBSERVATIONS_KEPT:
+                _OBSERVATIONS.pop(next(iter(_OBSERVATIONS)))
         noise = None
         if objective == "likelihood":
             from .noise import noise_model
