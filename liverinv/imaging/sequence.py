@@ -74,7 +74,14 @@ def _sample_grid(field_grid: np.ndarray, v: np.ndarray, order: int = 1) -> np.nd
 
 def inverse_map(u_grid_vox: np.ndarray, x_vox: np.ndarray, iterations: int = 6) -> np.ndarray:
     """Reference position X (voxels) of current positions x (voxels), ``x = X + u(X)``, by the
-    fixed-point iteration ``X <- x - u(X)`` (converges for displacement gradients < 1)."""
+    fixed-point iteration ``X <- x - u(X)`` (converges for displacement gradients < 1).
+
+    Six iterations from X = x do not converge where the displacement is large and steep: on the
+    model motion of the 100-frame warped PSR data (6 mm, 20 voxels axially) they were off the
+    25-iteration map by up to 1.0 voxel at the peak frame (RMS over the grid 0.0085 voxel; 4e-4
+    voxel at 4 voxels of motion). Three iterations from the previous frame's map were within 0.06-0.19
+    voxel (RMS 0.0008-0.0016). Left as it is: every warped bundle made so far was rendered so, and
+    `imaging.response` must render a model's motion exactly as its data were rendered."""
     X = x_vox.copy()
     for _ in range(iterations):
         X = x_vox - _sample_grid(u_grid_vox, X)
