@@ -455,7 +455,8 @@ def test_under_the_strict_level_the_nominal_level_picks_which_effect_is_recommen
     61 % at p 1e-60; refitted, strain stiffening removed 96 % and the sphere 28 %. Once an effect
     passes the strict level the largest predicted drop that passes the nominal level is
     recommended; nothing is when none passes the strict level (the nulls stay silent); the
-    nominal level recommends as before; a vetoed or unphysical row is never recommended."""
+    nominal level recommends as before; a vetoed or unphysical row is never recommended; drops
+    closer than MIN_DROP leave the strict level's candidate."""
     from liverinv.diagnose.files import explain
     from liverinv.diagnose.score import ALPHA, MIN_DROP, recommend
     rows = [dict(effect="strain_stiffening", p_value=2e-4, physical=True, predicted_drop=0.82),
@@ -469,6 +470,12 @@ def test_under_the_strict_level_the_nominal_level_picks_which_effect_is_recommen
     unphysical = [dict(r, physical=r["effect"] != "strain_stiffening") for r in rows]
     assert recommend(unphysical, ["inclusion"], 1e-4) == "inclusion"
     assert recommend(rows[2:], ["nonlinear_bulk"], 1e-4) == "nonlinear_bulk"
+    # warped Darcy flow with a bonded punch (seed 13): equal predicted drops do not choose
+    tie = [dict(effect="nonlinear_bulk", p_value=3.7e-4, physical=True, predicted_drop=0.2240),
+           dict(effect="bulk_relaxation", p_value=6.9e-7, physical=True, predicted_drop=0.2236)]
+    assert recommend(tie, ["bulk_relaxation"], 1e-4) == "bulk_relaxation"
+    assert recommend([dict(tie[0], predicted_drop=0.2236 + MIN_DROP), tie[1]], ["bulk_relaxation"], 1e-4) \
+        == "nonlinear_bulk"
     small = [dict(r, predicted_drop=MIN_DROP / 2) if r["effect"] != "inclusion" else r for r in rows]
     assert recommend(small, ["inclusion"], 1e-4) == "inclusion"
     text = explain(dict(rows=[dict(r, description=r["effect"], estimate={}, where="everywhere (x)") for r in rows],
