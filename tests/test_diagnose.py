@@ -326,6 +326,29 @@ def test_on_warped_volumes_the_reported_parameters_are_fitted_on_the_corrected_m
     assert json.loads(ds.attrs["tracker_response"])["params_before"] == pytest.approx(step["params"])
 
 
+def test_a_candidate_whose_response_fails_leaves_the_other_to_the_corrected_fit(tiny):
+    """corrected_final_fit: when the tracker's response to one mesh's fit cannot be solved (BR on
+    the medium mesh of the warped Darcy-flow-with-bonded-punch data failed at t 5.0 s), the
+    other candidate is refitted and reported, and the failure is among the warnings."""
+    from liverinv.diagnose.discover import corrected_final_fit
+    data, artefact = sphere_artefact_data(tiny)
+    nm = NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {})
+    good, bad = (Objective(tiny, "elastic", data, noise=nm) for _ in range(2))
+
+    def tracker_error(objective, params):
+        if objective is bad:
+            raise RuntimeError("step to t = 5.00234 s failed after 8 cuts")
+        return artefact
+    start = dict(C1=190.0, C2=5200.0, D1=1.4e-3)
+    def own():
+        return Objective(tiny, "elastic", data, noise=nm)
+    out = corrected_final_fit([("final mesh", bad, own, start), ("tracking mesh", good, own, start)], tracker_error)
+    assert out["mesh"] == "tracking mesh" and list(out["error_rms_m"]) == ["tracking mesh"]
+    assert any("response to the final mesh's fit failed (step to t = 5.00234 s" in w for w in out["warnings"])
+    for k in ("C1", "C2", "D1"):
+        assert out["params"][k] == pytest.approx(E[k], abs=2.5 * out["sd"][k])
+
+
 @pytest.mark.slow
 def test_discover_adds_the_planted_effect(tiny):
     """Discover from the elastic law on data with a bonded punch, and with Darcy flow: the
