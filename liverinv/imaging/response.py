@@ -15,8 +15,8 @@ warped by the model's displacement at frame time k (`sequence.warp_volume`, the 
 making synthetic sequences from a real reference volume) and the nodal tracker runs on the
 sequence exactly as `liverinv track` ran on the data. The difference between this response and
 the operator's prediction of the same motion is the operator's error at that motion; added to
-the operator (`identify.response.with_corrected_data` subtracts it from the data), it makes the observation right at the motion it was
-computed for, and to first order near it. On warped data the response to the true motion is
+the operator (`identify.response.with_corrected_data` subtracts it from the data), it makes the
+observation right at the motion it was computed for, and to first order near it. On warped data the response to the true motion is
 the tracked data itself.
 
 On moved-scatterer volumes (`sequence`, mode scatter) the data's speckle is not a warp of one
