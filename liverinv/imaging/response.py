@@ -33,6 +33,7 @@ truth (README, Identification), so `discover` corrects warped volumes only.
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 
@@ -95,7 +96,6 @@ def tracker_response(bundle, flow, tracking_mesh, model_mesh, u_frames: np.ndarr
 def bundle_imaging(bundle) -> dict:
     """The `imaging:` section a bundle was synthesized with (its attribute `imaging`), or {}
     for measured data."""
-    import json
     raw = bundle.attrs.get("imaging") or "{}"
     try:
         im = json.loads(raw)
