@@ -10,7 +10,7 @@ import xarray as xr
 
 from ..fileio import provenance
 from .effects import CATALOG, KAPPA_SECANTS
-from .score import ALPHA
+from .score import ALPHA, STRONG_DROP
 from .splits import SPLIT_MEANING
 
 __all__ = ["diagnosis_dataset", "discovery_dataset", "discovery_objective", "explain", "imaging_calibration",
@@ -23,7 +23,8 @@ WARPED_ALPHA = 1e-4
 WARPED_CAVEAT = ("the bundle's volumes were made by warping its first volume (liverinv synthesize, mode warp): "
                  "the tracker's own error is systematic there (the texture deforms with the tissue) and passes "
                  "for an effect at the usual level (each of 3 warped elastic null data sets had one at p 0.005, "
-                 f"predicted drop 1.4-2.6 %), so an effect needs p < {WARPED_ALPHA:g}; and a sphere of other "
+                 f"predicted drop 1.4-2.6 %), so an effect needs p < {WARPED_ALPHA:g}, or p < {ALPHA:g} with a "
+                 f"predicted drop of {100 * STRONG_DROP:g} % or more (score.passes); and a sphere of other "
                  "stiffness under the punch can be the tracker's at any level (warped Darcy-flow data gained one), so "
                  "an inclusion must also pass on the tracked motion less the tracker's response to the fitted model "
                  "(score.confirm_by_tracker_response). Moved-scatterer volumes (mode scatter) are what the "
@@ -87,9 +88,13 @@ def explain(d: dict, n=3) -> str:
                    if row.get("secant") else "; one-step estimate ") + est
         vetoed = d.get("vetoed", {}).get(row["effect"])
         verdict = (f"not recommended: it passes here, but {vetoed}" if vetoed else
-                   (f"recommended: an effect passed the strict level {d['alpha']:g} and this one has the largest "
-                    f"predicted drop of those that pass the nominal level {ALPHA:g}"
-                    if row["p_value"] >= d["alpha"] else "recommended") if row["effect"] == d["recommended"] else
+                   ("recommended" if row["p_value"] < d["alpha"] else
+                    f"recommended: it passes the nominal level {ALPHA:g} with a predicted drop of "
+                    f"{100 * STRONG_DROP:g} % or more, more than the tracker's error explained on warped null data"
+                    if row["effect"] in d["eligible"] else
+                    f"recommended: an effect passed the strict level {d['alpha']:g} and this one has the largest "
+                    f"predicted drop of those that pass the nominal level {ALPHA:g}")
+                   if row["effect"] == d["recommended"] else
                    "also passes the test (discover refits it as a trial)" if row["effect"] in d["eligible"] else
                    "significant below the drop threshold (discover refits it as a trial when an effect is "
                    "recommended)" if row["effect"] in d.get("significant", ()) else

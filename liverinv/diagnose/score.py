@@ -59,7 +59,12 @@ log = logging.getLogger(__name__)
 
 ALPHA = 0.01        # family-wise level of the scan-corrected one-sided test
 SECANT = "secant_to"   # a scan point that is the secant to the effect's full size (`Effect.far`)
+FULL = "full_size"     # ... and it stands for the full size (`Effect.far` or its fallback)
 MIN_DROP = 0.01     # an effect must be predicted to remove this fraction of Phi_vol
+#: under a level stricter than ALPHA (warped volumes), an effect predicted to remove this fraction
+#: of Phi_vol needs only ALPHA: along any effect the tracker's systematic error explained at most
+#: 2.6 % of Phi_vol on the recorded warped nulls and last steps (`passes`)
+STRONG_DROP = 0.05
 EPS = 1e-6          # step of the sensitivity directions
 
 
@@ -111,14 +116,19 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float | 
     secants = []
     for e in cands:
         for a in e.secant_points():
-            far = objective.evaluate_model(dict(params), e.secant_model(model, full, a, fm))
-            n_solves += 1
+            # the full size, where its solve fails nearly full (`Effect.far_fallback`)
+            tries = [a, *e.far_fallback] if a == e.far else [a]
+            for n, a_try in enumerate(tries, 1):
+                far = objective.evaluate_model(dict(params), e.secant_model(model, full, a_try, fm))
+                n_solves += 1
+                if far.ok:
+                    break
+                log.warning("the %s model at %s = %g %s did not solve (%s): %s", e.name, e.amplitude, a_try, e.unit,
+                            far.message[:200], f"trying {tries[n]:g}" if n < len(tries) else "not tested there")
             if not far.ok:
-                log.warning("the %s model at %s = %g %s did not solve (%s): not tested there", e.name, e.amplitude,
-                            a, e.unit, far.message[:200])
                 continue
             J = np.column_stack([J, far.residual - r])
-            cols.append((e, {SECANT: a}))
+            cols.append((e, {SECANT: a_try, FULL: a == e.far}))
             if e not in secants:
                 secants.append(e)
     Z = _orthogonal(J[:, :k], J[:, k:])
@@ -148,12 +158,12 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float | 
             # one-sided in the physical direction; two-sided (|t|, p doubled) for either sign
             t = ((abs(s[i]) if e.sign == 0 else -np.sign(e.sign) * s[i]) / np.sqrt(V[i])) if V[i] > 0 else 0.0
             cand = dict(i=i, theta=theta, physical=physical, drop=drop, t=t, scan=cols[i][1])
-            if SECANT in cols[i][1] and cols[i][1][SECANT] == e.far:
+            if cols[i][1].get(FULL):
                 # theta is the fraction of the full effect; the amplitude from the effect's
                 # saturation, its half-size amplitude from the tangent (at the null) and the secant
                 tan = next(j for j in idx if SECANT not in cols[j][1])
                 half = float(Z[:, i] @ Z[:, tan] / zz[tan]) if zz[tan] > 0 else np.nan
-                cand["theta"] = e.saturating_amplitude(theta, half) if physical else theta
+                cand["theta"] = e.saturating_amplitude(theta, half, cols[i][1][SECANT]) if physical else theta
             elif SECANT in cols[i][1]:
                 # a point of the secant scan: the amplitude is the point's (theta, the fraction of
                 # its change that fits, is not an amplitude of a response this far from linear)
@@ -167,12 +177,11 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float | 
                          predicted_drop_phi=float(best["drop"]), p_value=p_adj, p_value_raw=p_raw,
                          statistic=float(best["t"]), physical=bool(best["physical"]), n_scan=len(idx),
                          amplitude=float(best["theta"]), amplitude_unit=e.unit,
-                         estimate=e.estimate(best["theta"], {k: v for k, v in best["scan"].items() if k != SECANT})
+                         estimate=e.estimate(best["theta"], {k: v for k, v in best["scan"].items() if k not in (SECANT, FULL)})
                          if best["physical"] else {}, secant=SECANT in best["scan"],
                          where=_where(objective, Z[:, best["i"]], n_vol)))
     rows.sort(key=lambda row: (-row["predicted_drop"], row["p_value"]))
-    ok = [row for row in rows if row["p_value"] < alpha and row["predicted_drop"] >= min_drop and row["physical"]]
-    eligible = [row["effect"] for row in ok]
+    eligible = [row["effect"] for row in rows if passes(row, alpha, min_drop)]
     not_tested = {e.name: e.why_not for e in CATALOG.values() if not e.available}
     from .splits import misfit_splits
     return dict(rows=rows, splits=misfit_splits(objective, r, ev.v_fem),
@@ -192,6 +201,20 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float | 
                              f"{e.amplitude} = {a:g} {e.unit}" for a in e.secant_points())
                          + f" ({len(e.secant_points())} solve{'s' if len(e.secant_points()) > 1 else ''}); "
                          for e in secants) + "p-values Bonferroni over each effect's scan")
+
+
+def passes(row, alpha=ALPHA, min_drop=MIN_DROP) -> bool:
+    """Is the diagnosis `row` worth adding: physical, predicted to remove `min_drop` of Phi_vol
+    and significant at `alpha`; or, under a level stricter than `ALPHA` (warped volumes), at
+    `ALPHA` with a predicted drop of `STRONG_DROP`. The strict level is there because the
+    tracker's error on warped volumes is systematic and passed the nominal level on every warped
+    null, but along no effect did it explain more than 2.6 % of Phi_vol (elastic nulls, speckle
+    seeds 6-10: 1.4-2.6 % at p 0.003-0.009; SR null seed 13: 1.6 % at p 0.004; the last steps of
+    six warped discoveries: at most 2.2 %, p 6e-4). A bonded punch beside bulk relaxation (warped
+    Darcy flow + bonded punch, seed 13) was predicted at 11.5 %, p 2.6e-4, and was missed."""
+    if not row["physical"] or row["predicted_drop"] < min_drop:
+        return False
+    return row["p_value"] < alpha or (alpha < ALPHA and row["p_value"] < ALPHA and row["predicted_drop"] >= STRONG_DROP)
 
 
 def recommend(rows, eligible, alpha=ALPHA, min_drop=MIN_DROP, vetoed=()) -> str:
