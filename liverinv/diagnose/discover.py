@@ -50,7 +50,7 @@ from ..identify.optimize import Fit
 from ..identify.search import SEARCH_PAIRS, merge_factor
 from ..laws import PARAMS, get_law
 from .effects import CATALOG, law_with
-from .score import ALPHA, MIN_DROP, confirm_by_tracker_response, diagnose, refine_inclusion
+from .score import ALPHA, MIN_DROP, confirm_by_tracker_response, diagnose, passes, refine_inclusion
 
 __all__ = ["discover", "final_fit", "fit_law", "rival_swaps", "trial_rows"]
 
@@ -85,8 +85,8 @@ def trial_rows(diagnosis, n=N_TRIALS) -> list:
         best_row.setdefault(r["effect"], r)
     alpha = diagnosis.get("alpha", ALPHA)
     vetoed = diagnosis.get("vetoed", {})        # the tracker's (score.confirm_by_tracker_response)
-    nominal = [r["effect"] for r in diagnosis["rows"] if alpha < ALPHA and r["p_value"] < ALPHA and r["physical"]
-               and r["predicted_drop"] >= diagnosis.get("min_drop", MIN_DROP) and r["effect"] not in vetoed]
+    nominal = [r["effect"] for r in diagnosis["rows"] if alpha < ALPHA and r["effect"] not in vetoed
+               and passes(r, ALPHA, diagnosis.get("min_drop", MIN_DROP))]
     chosen = list(dict.fromkeys(diagnosis["eligible"] + diagnosis["significant"]))[:n]
     chosen += [e for e in nominal if e not in chosen][:1]
     rivals = [r for e in chosen for r in CATALOG[e].rivals if r in best_row and r not in chosen]

@@ -235,8 +235,7 @@ def recommend(rows, eligible, alpha=ALPHA, min_drop=MIN_DROP, vetoed=()) -> str:
         return "none"
     if alpha < ALPHA:
         drop = {r["effect"]: r["predicted_drop"] for r in reversed(rows)}     # each effect's best row
-        nominal = [r["effect"] for r in rows if r["p_value"] < ALPHA and r["physical"]
-                   and r["predicted_drop"] >= min_drop and r["effect"] not in vetoed]
+        nominal = [r["effect"] for r in rows if passes(r, ALPHA, min_drop) and r["effect"] not in vetoed]
         if nominal and drop[nominal[0]] - drop[eligible[0]] >= min_drop:
             return nominal[0]
     return eligible[0]
