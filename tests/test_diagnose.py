@@ -536,7 +536,7 @@ def test_under_the_strict_level_a_large_predicted_drop_needs_only_the_nominal_le
 
 def test_a_secant_whose_full_size_does_not_solve_is_taken_nearly_full(tiny, monkeypatch):
     """The bonded punch's penalty (1e12 Pa/m) can stall Newton (the BR fit of warped Darcy flow
-    + bonded punch data did not solve there, and at 1e10 only with the bottom's springs off):
+    + bonded punch data did not solve there, and at 1e10 not in every setup tried by hand):
     the secant is then taken to the fallbacks (1e10, then 1e9 Pa/m) and still finds a planted
     bonded punch, bonded, at one solve more."""
     run = ForwardModel(tiny.mesh, punch="bonded").run("elastic", E, ramp_history(4e-3, 2e-3, frames=17, unload=True))

@@ -2,6 +2,7 @@
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -357,7 +358,6 @@ def test_objectives_on_the_same_files_share_their_observation_operator(tmp_path,
     assert again.observation is first.observation and len(setup._OBSERVATIONS) == 1
     u = np.random.default_rng(0).standard_normal((2, first.forward.mesh.n_nodes, 3))
     flow.write_bytes(flow.read_bytes())                  # the same content, a new file
-    import os
     os.utime(flow, ns=(1, 1))
     renewed, _ = setup.objective_from_files(bundle, flow, MESH, "elastic")
     assert renewed.observation is not first.observation

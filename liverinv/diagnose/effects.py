@@ -214,9 +214,9 @@ CATALOG = {e.name: e for e in [
     Effect("punch_friction", "the punch face holds the tissue tangentially (friction: a tangential spring "
            "on the footprint, k_punch)", "k_punch", "kPa/mm", Linear("k_punch", 1e6), needs=("k_punch",),
            far=1e6,      # 1e12 Pa/m: bonded to 2e-5 in force (tests/test_springs.py)
-           # 1e10 and 1e9 Pa/m (still bonded to a few %) where the penalty's conditioning stalls
-           # Newton: the BR fit of warped Darcy flow + bonded punch data, seed 13 (D1 2.5e-5 1/Pa),
-           # solved only from 1e9 on
+           # 1e10, then 1e9 Pa/m where the penalty stalls Newton: at the BR fit of warped Darcy flow
+           # + bonded punch data, seed 13 (D1 2.5e-5 1/Pa), 1e12 did not solve; 1e10 solved in the
+           # diagnosis, not in every setup tried by hand (/tmp/s22/sec.py); 1e9 in every one
            far_fallback=(1e4, 1e3)),
     Effect("bottom_slip", "the bottom face slides (a tangential compliance of the support, c_bottom)",
            "c_bottom", "mm/kPa", Linear("c_bottom", 1e-6), needs=("c_bottom",),

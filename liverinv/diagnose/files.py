@@ -77,6 +77,31 @@ def _fmt(v) -> str:
     return "[" + ", ".join(f"{x:.3g}" for x in v) + "]" if isinstance(v, (list, tuple)) else f"{v:.3g}"
 
 
+def _verdict(row: dict, d: dict) -> str:
+    """Why the diagnosis `d` recommends its candidate `row`, or does not."""
+    effect = row["effect"]
+    vetoed = d.get("vetoed", {}).get(effect)
+    if vetoed:
+        return f"not recommended: it passes here, but {vetoed}"
+    if effect == d["recommended"]:
+        if row["p_value"] < d["alpha"]:
+            return "recommended"
+        if effect in d["eligible"]:
+            return (f"recommended: it passes the nominal level {ALPHA:g} with a predicted drop of "
+                    f"{100 * STRONG_DROP:g} % or more, more than the tracker's error explained on warped null data")
+        return (f"recommended: an effect passed the strict level {d['alpha']:g} and this one has the largest "
+                f"predicted drop of those that pass the nominal level {ALPHA:g}")
+    if effect in d["eligible"]:
+        return "also passes the test (discover refits it as a trial)"
+    if effect in d.get("significant", ()):
+        return "significant below the drop threshold (discover refits it as a trial when an effect is recommended)"
+    if not row["physical"]:
+        return "not recommended: its one-step estimate has the wrong sign"
+    if row["p_value"] >= d["alpha"]:
+        return f"not recommended: p = {row['p_value']:.2g} >= {d['alpha']}"
+    return f"not recommended: predicted drop {100 * row['predicted_drop']:.1f} % < {100 * d['min_drop']:.0f} % of Phi_vol"
+
+
 def explain(d: dict, n=3) -> str:
     """The top `n` candidates in plain words."""
     lines = []
@@ -86,22 +111,7 @@ def explain(d: dict, n=3) -> str:
             est = ("; estimate from the secant to " + ("its full size " if CATALOG[row["effect"]].far is not None
                                                        else "the best point of its scan ")
                    if row.get("secant") else "; one-step estimate ") + est
-        vetoed = d.get("vetoed", {}).get(row["effect"])
-        verdict = (f"not recommended: it passes here, but {vetoed}" if vetoed else
-                   ("recommended" if row["p_value"] < d["alpha"] else
-                    f"recommended: it passes the nominal level {ALPHA:g} with a predicted drop of "
-                    f"{100 * STRONG_DROP:g} % or more, more than the tracker's error explained on warped null data"
-                    if row["effect"] in d["eligible"] else
-                    f"recommended: an effect passed the strict level {d['alpha']:g} and this one has the largest "
-                    f"predicted drop of those that pass the nominal level {ALPHA:g}")
-                   if row["effect"] == d["recommended"] else
-                   "also passes the test (discover refits it as a trial)" if row["effect"] in d["eligible"] else
-                   "significant below the drop threshold (discover refits it as a trial when an effect is "
-                   "recommended)" if row["effect"] in d.get("significant", ()) else
-                   "not recommended: " + ("its one-step estimate has the wrong sign" if not row["physical"] else
-                                          f"p = {row['p_value']:.2g} >= {d['alpha']}" if row["p_value"] >= d["alpha"]
-                                          else f"predicted drop {100 * row['predicted_drop']:.1f} % < "
-                                               f"{100 * d['min_drop']:.0f} % of Phi_vol"))
+        verdict = _verdict(row, d)
         lines.append(f"{row['effect']}: {row['description']}. Adding it is predicted to remove "
                      f"{100 * row['predicted_drop']:.1f} % of Phi_vol (p = {row['p_value']:.2g} after the scan's "
                      f"correction){est}; it acts {row['where'].split(' (')[0]}. "
