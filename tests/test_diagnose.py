@@ -641,3 +641,65 @@ def test_a_sphere_that_is_the_trackers_is_vetoed_and_a_true_one_confirmed(tiny):
     assert json.loads(attrs["vetoed"]) == vetoed["vetoed"] and attrs["recommended"] == "none"
     assert json.loads(attrs["tracker_check"])["effects"]["inclusion"]["passes"] is False
     assert "taken for the tracker's" in attrs["explanation"]
+
+
+def test_an_addition_the_corrected_fit_returns_to_its_null_is_withdrawn(tiny):
+    """discover withdraws its last addition when the fit on the tracked motion less the
+    tracker's response puts the effect's amplitude within Z_WITHDRAW SDs of its null (the warped
+    neo-Hookean null, seed 14: a sphere at contrast 0.28 on the coarse mesh, 1.04 +- 0.03 on the
+    medium mesh's corrected motion). Elastic data whose tracked motion carries a planted error
+    shaped like a 3x stiffer sphere gain a sphere when the inclusion's tracker check is off;
+    told the error, the corrected fit returns its contrast to 1, so the discovery ends at the
+    elastic step, whose diagnosis says why, with the elastic law's corrected parameters. Told
+    the tracker adds nothing, the same sphere is kept."""
+    import json
+
+    from liverinv.diagnose.discover import Z_WITHDRAW, discover
+    from liverinv.diagnose.files import discovery_dataset
+    data, artefact = sphere_artefact_data(tiny)
+    nm = NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {})
+
+    def objective_for(lw, fixed, noise):
+        return Objective(tiny, lw, data, fixed=fixed, noise=noise or nm)
+    start = dict(C1=150.0, C2=6000.0, D1=1e-3)
+    seen = []
+
+    def trackers(objective, params):
+        seen.append(objective.law)
+        return artefact
+    out = discover(objective_for, "elastic", start, max_steps=1, tracker_error=trackers, confirm_inclusions=False)
+    gone, = out["withdrawn"]
+    assert gone["effect"] == "inclusion" and gone["step"] == 1 and f"{Z_WITHDRAW:g} SD" in gone["why"]
+    assert [s["added"] for s in out["steps"]] == [""]
+    d = out["steps"][-1]["diagnosis"]
+    assert d["recommended"] == "none" and d["vetoed"]["inclusion"] == gone["why"]
+    assert seen == ["elastic+inclusion", "elastic"]   # the corrected fit of each law, in turn
+    corrected = out["corrected"]
+    assert "inc_scale" not in corrected["params"] and "inclusion_center_m" not in corrected["params"]
+    for k in ("C1", "C2", "D1"):
+        assert corrected["params"][k] == pytest.approx(E[k], abs=2.5 * corrected["sd"][k])
+    ds = discovery_dataset(out)
+    assert ds.sizes["step"] == 1 and json.loads(ds.attrs["withdrawn"]) == out["withdrawn"]
+    assert "withdrawn" in ds.attrs["stopped_because"] and ds.recommended.values[-1] == "none"
+
+
+
+def test_the_withdrawal_rule_reads_the_most_accurate_fit_and_keeps_saturating_effects():
+    """unresolved_addition on recorded numbers: the warped neo-Hookean null's sphere (seed 14,
+    medium mesh's corrected fit: contrast 1.043, SD 0.030) is withdrawn; the held-out warped
+    Darcy flow with bonded punch (seed 14: kappa 9.46e-9, SD 7.9e-11) is kept, and so is its
+    bonded punch (k_punch at its bound 1e12 Pa/m, SD 3.9e13: a saturating effect, no Wald test).
+    A final fit not kept is not read; the corrected fit is read before the final one."""
+    from liverinv.diagnose.discover import unresolved_addition
+    sphere = dict(params=dict(C1=597.2, inc_scale=1.043), sd=dict(C1=2.6, inc_scale=0.030), mesh="final mesh")
+    why = unresolved_addition("inclusion", None, sphere)
+    assert "1.4 SD of its null (inc_scale 1.043, SD 0.03" in why and "less the tracker's response" in why
+    assert unresolved_addition("inclusion", dict(sphere, kept=False), None) == ""
+    assert "on the finer model mesh" in unresolved_addition("inclusion", sphere, None)
+    assert unresolved_addition("inclusion", sphere, dict(sphere, params=dict(inc_scale=1.3))) == ""
+    flow = dict(params=dict(kappa=9.46e-9, k_punch=1e12), sd=dict(kappa=7.9e-11, k_punch=3.9e13))
+    assert unresolved_addition("poroelastic", None, flow) == ""
+    assert unresolved_addition("punch_friction", None, flow) == ""
+    assert CATALOG["poroelastic"].amplitude_z(flow["params"], flow["sd"]) == pytest.approx(9.46e-9 / 7.9e-11, rel=1e-3)
+    assert CATALOG["punch_friction"].amplitude_z(flow["params"], flow["sd"]) is None
+    assert unresolved_addition("", None, sphere) == ""

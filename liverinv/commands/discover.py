@@ -39,7 +39,7 @@ def run(args) -> int:
     from dataclasses import replace
 
     from ..cli import UserError
-    from ..diagnose.discover import discover
+    from ..diagnose.discover import Z_WITHDRAW, discover
     from ..diagnose.effects import KAPPA_SECANTS
     from ..diagnose.files import discovery_dataset, imaging_calibration, tracker_error_for
     from ..fileio import write_netcdf
@@ -118,7 +118,11 @@ def run(args) -> int:
                                        "tracked motion less the tracker's response to its fit, on the tracking and "
                                        "the finer mesh, the lower Phi taken and balanced from the data's own noise "
                                        "levels (liverinv.diagnose.discover.corrected_final_fit): its parameters are "
-                                       "the last step's params" if calibration["correct_final"] else ""),
+                                       "the last step's params" if calibration["correct_final"] else "")
+                                    + "; the last addition is withdrawn (and the step before it fitted again) when "
+                                    "the last refit (on the corrected motion, else on the finer mesh) puts its "
+                                    f"amplitude within {Z_WITHDRAW:g} SD of its null "
+                                    "(liverinv.diagnose.discover.unresolved_addition)",
                            inclusions=json.dumps([i.to_json() for i in inclusions]), fixed=json.dumps(fixed),
                            final_model_mesh=str(final_mesh or ""), final_model_mesh_note=final_note,
                            caveat=calibration["caveat"], alpha=calibration["alpha"])

@@ -148,6 +148,21 @@ class Effect:
         """Is the one-step amplitude `theta` physical (two-sided effects: a positive stiffness)?"""
         return theta > -0.95 if self.sign == 0 else theta * self.sign > 0
 
+    def amplitude_z(self, params: dict, sd: dict) -> float | None:
+        """How far a fit's amplitude lies from its null, in its SDs (the Wald statistic), from
+        the fitted parameters `params` and their SDs `sd` (SI; the SD of the amplitude by the
+        delta method). None for an effect that saturates (`far`: a bonded punch ends at its
+        bound, where its SD says nothing) and for a parameter without an SD."""
+        name = "inc_scale" if self.geometric else self.to_param.param if self.to_param else None
+        if self.far is not None or name not in params or not sd.get(name, 0) > 0:
+            return None
+        p, s = float(params[name]), float(sd[name])
+        if self.geometric:
+            return abs(p - 1.0) / s
+        if isinstance(self.to_param, Reciprocal):       # amplitude 1/p - 1/null, its SD s / p^2
+            return abs(1.0 / p - 1.0 / self.to_param.null) * p * p / s
+        return abs(p) / s
+
     def estimate(self, theta: float, scan: dict) -> dict:
         """The effect's parameters (SI) for an amplitude `theta` (units of `unit`)."""
         if self.geometric:

@@ -250,7 +250,9 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
             recommended=("step", [s["diagnosis"]["recommended"] for s in steps]),
             vetoed=("step", [json.dumps(s["diagnosis"].get("vetoed", {})) for s in steps],
                     {"long_name": "effects that passed this step's test but not on the tracked motion less the "
-                                  "tracker's response to the fitted model (warped volumes), with why (JSON)"}),
+                                  "tracker's response to the fitted model (warped volumes), or that were added "
+                                  "and withdrawn when the most accurate fit returned them to their null "
+                                  "(attribute withdrawn), with why (JSON)"}),
             tracker_check=("step", [json.dumps(s["diagnosis"].get("tracker_check", {})) for s in steps],
                            {"long_name": "the inclusion's test on the tracked motion less the tracker's response "
                                          "to the fitted model: p-value, predicted drop, estimate (JSON; warped "
@@ -270,7 +272,8 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
         ),
         coords=dict(step=np.arange(len(steps))),
     )
-    ds.attrs = provenance(stopped_because=out["stopped_because"], noise=out["noise"], **attrs)
+    ds.attrs = provenance(stopped_because=out["stopped_because"], noise=out["noise"],
+                          withdrawn=json.dumps(out.get("withdrawn", [])), **attrs)
     return ds
 
 
