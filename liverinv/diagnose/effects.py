@@ -148,20 +148,27 @@ class Effect:
         """Is the one-step amplitude `theta` physical (two-sided effects: a positive stiffness)?"""
         return theta > -0.95 if self.sign == 0 else theta * self.sign > 0
 
-    def amplitude_z(self, params: dict, sd: dict) -> float | None:
-        """How far a fit's amplitude lies from its null, in its SDs (the Wald statistic), from
-        the fitted parameters `params` and their SDs `sd` (SI; the SD of the amplitude by the
-        delta method). None for an effect that saturates (`far`: a bonded punch ends at its
-        bound, where its SD says nothing) and for a parameter without an SD."""
+    def amplitude_of(self, params: dict, sd: dict | None = None):
+        """The amplitude (units of the law's parameter) of fitted `params` and, with their SDs
+        `sd` (SI), its SD by the delta method: (amplitude, SD or None); None for an effect that
+        saturates (`far`: a bonded punch ends at its bound, where its SD says nothing) or whose
+        parameter is not in `params`."""
         name = "inc_scale" if self.geometric else self.to_param.param if self.to_param else None
-        if self.far is not None or name not in params or not sd.get(name, 0) > 0:
+        if self.far is not None or name not in params:
             return None
-        p, s = float(params[name]), float(sd[name])
+        p = float(params[name])
+        s = float(sd[name]) if sd and sd.get(name, 0) > 0 else None
         if self.geometric:
-            return abs(p - 1.0) / s
+            return p - 1.0, s
         if isinstance(self.to_param, Reciprocal):       # amplitude 1/p - 1/null, its SD s / p^2
-            return abs(1.0 / p - 1.0 / self.to_param.null) * p * p / s
-        return abs(p) / s
+            return 1.0 / p - 1.0 / self.to_param.null, (s / (p * p) if s else None)
+        return p, s
+
+    def amplitude_z(self, params: dict, sd: dict) -> float | None:
+        """How far a fit's amplitude lies from its null, in its SDs (the Wald statistic); None
+        where `amplitude_of` gives no amplitude or no SD."""
+        a = self.amplitude_of(params, sd)
+        return abs(a[0]) / a[1] if a and a[1] else None
 
     def estimate(self, theta: float, scan: dict) -> dict:
         """The effect's parameters (SI) for an amplitude `theta` (units of `unit`)."""
