@@ -714,3 +714,8 @@ def test_the_withdrawal_rule_reads_the_most_accurate_fit_and_keeps_saturating_ef
     assert CATALOG["poroelastic"].amplitude_z(flow["params"], flow["sd"]) == pytest.approx(9.46e-9 / 7.9e-11, rel=1e-3)
     assert CATALOG["punch_friction"].amplitude_z(flow["params"], flow["sd"]) is None
     assert unresolved_addition("", {}, None, s14) == ""
+    # a sphere at the contrast bound (50: the 10x spheres of warped data) has no Wald test, its sign stays
+    bound = dict(params=dict(inc_scale=50.0), sd=dict(inc_scale=120.0))
+    assert CATALOG["inclusion"].amplitude_z(bound["params"], bound["sd"]) is None
+    assert unresolved_addition("inclusion", dict(inc_scale=50.0), None, bound) == ""
+    assert "changed sign" in unresolved_addition("inclusion", dict(inc_scale=0.3), None, bound)

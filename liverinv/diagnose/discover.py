@@ -405,15 +405,16 @@ def unresolved_addition(effect: str, added: dict, final, corrected) -> str:
     3.4 SD). A score test and the trial refits see the data through the tracking mesh, whose
     discretization error (4.6 % stiffer at the punch rim on the coarse benchmark mesh) an
     effect can mimic: a softer sphere under the punch. Effects that saturate (a bonded punch,
-    a sliding bottom) end at a bound where the SD says nothing, and are kept."""
+    a sliding bottom) end at a bound where the SD says nothing, and are kept; an amplitude at
+    the bound of its range (a 10x sphere at contrast 50) is judged by its sign alone."""
     fit = next((f for f in (corrected, final) if f and f.get("params") and f.get("kept", True)), None)
     if not effect or fit is None:
         return ""
     e = CATALOG[effect]
     now, before = e.amplitude_of(fit["params"], fit.get("sd", {})), e.amplitude_of(added)
-    if now is None or now[1] is None or before is None:
+    if now is None or before is None:
         return ""
-    z = abs(now[0]) / now[1]
+    z = abs(now[0]) / now[1] if now[1] else np.inf      # no SD (at a bound): the sign alone
     flipped = now[0] * before[0] < 0
     if z >= Z_WITHDRAW and not flipped:
         return ""

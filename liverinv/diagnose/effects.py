@@ -150,14 +150,15 @@ class Effect:
 
     def amplitude_of(self, params: dict, sd: dict | None = None):
         """The amplitude (units of the law's parameter) of fitted `params` and, with their SDs
-        `sd` (SI), its SD by the delta method: (amplitude, SD or None); None for an effect that
-        saturates (`far`: a bonded punch ends at its bound, where its SD says nothing) or whose
-        parameter is not in `params`."""
+        `sd` (SI), its SD by the delta method: (amplitude, SD or None: none given, or the
+        parameter at a bound of its range, where the SD says nothing: a 10x sphere of warped
+        data ends at contrast 50); None for an effect that saturates (`far`: a bonded punch
+        ends at its bound) or whose parameter is not in `params`."""
         name = "inc_scale" if self.geometric else self.to_param.param if self.to_param else None
         if self.far is not None or name not in params:
             return None
         p = float(params[name])
-        s = float(sd[name]) if sd and sd.get(name, 0) > 0 else None
+        s = float(sd[name]) if sd and sd.get(name, 0) > 0 and not _at_bound(name, p) else None
         if self.geometric:
             return p - 1.0, s
         if isinstance(self.to_param, Reciprocal):       # amplitude 1/p - 1/null, its SD s / p^2
@@ -176,6 +177,17 @@ class Effect:
             return {"inc_scale": float(1.0 + theta), "inclusion_center_m": [float(v) for v in scan["center_m"]],
                     "inclusion_radius_m": float(scan["radius_m"])}
         return {**scan, self.to_param.param: self.to_param(theta)}
+
+
+def _at_bound(name: str, value: float, tol: float = 1e-3) -> bool:
+    """Is `value` within `tol` of a bound of the parameter's range (`laws.PARAMS`; in log10
+    for a log-scaled parameter, as `Fit.at_bound`)?"""
+    par = PARAMS.get(name)
+    if par is None:
+        return False
+    if par.scale == "log":
+        return any(b > 0 and value > 0 and abs(np.log10(value / b)) < tol for b in (par.lower, par.upper))
+    return min(abs(value - par.lower), abs(value - par.upper)) < tol * (par.upper - par.lower)
 
 
 def inclusion_grid(mesh) -> list[dict]:
