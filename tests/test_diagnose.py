@@ -293,16 +293,25 @@ def test_on_warped_volumes_the_reported_parameters_are_fitted_on_the_corrected_m
     nm = NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {})
     seen = []
 
-    def trackers(objective, params):
+    made, by = [], []
+
+    def trackers(objective, params, predicted_by=None):
         seen.append(dict(params))
+        by.append((objective, predicted_by))
         return artefact
 
     def objective_for(lw, fixed, noise):
-        return Objective(tiny, lw, data, fixed=fixed, noise=noise or nm)
+        made.append(Objective(tiny, lw, data, fixed=fixed, noise=noise or nm))
+        return made[-1]
     out = discover(objective_for, "elastic", dict(C1=150.0, C2=6000.0, D1=1e-3), max_steps=0,
                    final_objective_for=objective_for, tracker_error=trackers)
     step, corrected = out["steps"][-1], out["corrected"]
     assert step["diagnosis"]["recommended"] == "none"        # the check vetoed the sphere
+    # the check took the response to the finer mesh's model (built for it), predicted by the step's
+    checked, predictor = by[0]
+    assert predictor is not None and predictor is not checked and checked in made and predictor.law == "elastic"
+    assert step["diagnosis"]["tracker_check"]["response_mesh"] == "final mesh"
+    assert all(p is None for _, p in by[1:])       # the corrected fits: each mesh's own response
     # the check's response at the step's fit, then one per candidate at its own fit
     assert seen[0] == pytest.approx({k: step["params"][k] for k in seen[0]}) and len(seen) == 3
     assert seen[-1] == pytest.approx({k: out["final"]["params"][k] for k in seen[-1]})

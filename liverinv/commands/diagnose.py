@@ -47,10 +47,28 @@ def objective_of_fit(fit, bundle, flow, mesh, model_mesh=None, observation=None,
     return obj, params, ds
 
 
+def finer_objective(args, obj):
+    """A function returning the fit's objective on a finer model mesh (the medium preset of
+    the model's cylinder, written beside --out, as `discover --final-mesh auto`), for the
+    inclusion check on warped volumes (`score.tracker_and_mesh_error`); None when the model
+    mesh is not a cylinder or is already at least as fine."""
+    from ..meshgen import refined_model_mesh
+
+    path = args.out.with_name(args.out.stem + "_model_mesh.msh")
+
+    def finer():
+        made, note = refined_model_mesh(obj.forward.mesh, path)
+        if made is None:
+            raise ValueError(note)
+        return objective_of_fit(args.fit, args.bundle, args.flow, args.mesh, made, args.observation,
+                                args.quadrature_order)[0]
+    return finer
+
+
 def run(args) -> int:
     from ..cli import UserError
     from ..diagnose.files import diagnosis_dataset, explain, imaging_calibration, tracker_error_for
-    from ..diagnose.score import confirm_by_tracker_response, diagnose
+    from ..diagnose.score import confirm_by_tracker_response, diagnose, tracker_and_mesh_error
     from ..diagnose.splits import SPLIT_MEANING
     from ..fileio import write_netcdf
     from ..laws import PARAMS
@@ -63,9 +81,12 @@ def run(args) -> int:
         log_scale = [PARAMS[n].scale == "log" for n in names]
         d = diagnose(obj, params, names, log_scale, float(ds.phi_vol), args.effects, alpha=calibration["alpha"])
         if calibration["confirm_geometric"]:
-            d = confirm_by_tracker_response(d, obj, params, names, log_scale,
-                                            tracker_error_for(args.bundle, args.flow, args.mesh),
-                                            alpha=calibration["alpha"])
+            used = []
+            error = tracker_error_for(args.bundle, args.flow, args.mesh)
+            d = confirm_by_tracker_response(d, obj, params, names, log_scale, lambda o, p: tracker_and_mesh_error(
+                error, o, p, finer_objective(args, obj), used), alpha=calibration["alpha"])
+            if "tracker_check" in d:
+                d["tracker_check"]["response_mesh"] = used[-1] if used else ""
     except (ValueError, KeyError) as e:
         raise UserError(str(e)) from None
     caveat = calibration["caveat"]

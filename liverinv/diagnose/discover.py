@@ -50,7 +50,8 @@ from ..identify.optimize import Fit
 from ..identify.search import SEARCH_PAIRS, merge_factor
 from ..laws import PARAMS, get_law
 from .effects import CATALOG, law_with
-from .score import ALPHA, MIN_DROP, confirm_by_tracker_response, diagnose, passes, refine_inclusion
+from .score import (ALPHA, MIN_DROP, confirm_by_tracker_response, diagnose, passes, refine_inclusion,
+                    tracker_and_mesh_error)
 
 __all__ = ["discover", "final_fit", "fit_law", "rival_swaps", "trial_rows"]
 
@@ -178,8 +179,9 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     (`files.imaging_calibration`); `tracker_error(objective, params)`: where given (warped
     volumes, `files.tracker_error_for`), the last step's law is refitted on the tracked motion
     less the tracker's response to its fit (`corrected_final_fit`) and, with
-    `confirm_inclusions` (warped volumes), an inclusion that passes is tested again on that
-    corrected motion (`score.confirm_by_tracker_response`). The last addition is withdrawn, and
+    `confirm_inclusions` (warped volumes), an inclusion that passes is tested again on the
+    tracked motion less the tracker's response to the finer mesh's motion
+    (`score.tracker_and_mesh_error`, `score.confirm_by_tracker_response`). The last addition is withdrawn, and
     the step before it fitted again, when the corrected or final fit returns its amplitude to
     its null (`unresolved_addition`).
     Returns the steps (law, added effect, fit and diagnosis figures), the final and corrected
@@ -195,6 +197,9 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
 
     def objective(law, fixed, noise, more=()):
         return holding(objective_for(law, fixed, noise), more)
+
+    def finer():      # the step's law on the final fit's finer mesh, for the inclusion check
+        return holding(final_objective_for(current_law, fixed, noise))
 
     obj = objective(base_law, user_fixed, None)
     law = get_law(base_law)
@@ -228,7 +233,11 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     for step in range(max_steps + 1):
         d = diagnose(obj, params, fit.names, fit.log_scale, rec["phi_vol"], alpha=alpha)
         if tracker_error is not None and confirm_inclusions:
-            d = confirm_by_tracker_response(d, obj, params, fit.names, fit.log_scale, tracker_error, alpha=alpha)
+            used = []
+            d = confirm_by_tracker_response(d, obj, params, fit.names, fit.log_scale, lambda o, p: tracker_and_mesh_error(
+                tracker_error, o, p, finer if final_objective_for is not None else None, used), alpha=alpha)
+            if "tracker_check" in d:
+                d["tracker_check"]["response_mesh"] = used[-1] if used else ""
         steps.append(dict(step=step, law=current_law, fixed=dict(fixed), added=added[-1] if added and step else "",
                           effects=list(added),
                           params={**params, **fixed, **_geometry(held)}, sd=d["uncertainty"]["sd"],

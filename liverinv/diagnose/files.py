@@ -52,21 +52,22 @@ def imaging_calibration(bundle) -> dict:
 
 
 def tracker_error_for(bundle, flow, mesh):
-    """`tracker_error(objective, params)` for `score.confirm_by_tracker_response` on the data
-    at these paths (the bundle, its tracked flow, the tracking mesh): the tracker's response
-    to the model's motion less the observation operator's prediction of it."""
+    """`tracker_error(objective, params, predicted_by=None)` for
+    `score.confirm_by_tracker_response` on the data at these paths (the bundle, its tracked
+    flow, the tracking mesh): the tracker's response to the model's motion less the observation
+    operator's prediction of it (`predicted_by`'s, where given: `identify.response.tracker_error`)."""
     from ..identify.response import tracker_error
     from ..imaging.bundle import open_bundle
     from ..mesh import read_mesh
 
     last = {}      # the latest response: the check of the last step and its corrected fit share it
 
-    def error(objective, params):
-        key = (id(objective), objective.law, json.dumps(params, sort_keys=True))
+    def error(objective, params, predicted_by=None):
+        key = (id(objective), id(predicted_by), objective.law, json.dumps(params, sort_keys=True))
         if key not in last:
             with open_bundle(bundle) as b:
                 e = tracker_error(objective, params, b, xr.load_dataset(flow, engine="h5netcdf"),
-                                  read_mesh(mesh, required=()))
+                                  read_mesh(mesh, required=()), predicted_by=predicted_by)
             last.clear()
             last[key] = e
         return last[key]

@@ -241,6 +241,28 @@ def recommend(rows, eligible, alpha=ALPHA, min_drop=MIN_DROP, vetoed=()) -> str:
     return eligible[0]
 
 
+def tracker_and_mesh_error(tracker_error, objective, params: dict, finer=None, used=None):
+    """The error the inclusion check (`confirm_by_tracker_response`) takes from the tracked
+    motion: with `finer` (a function returning the same law's objective on a finer model mesh),
+    the tracker's response to the finer mesh's motion less `objective`'s prediction, so the
+    tracker's error and the tracking mesh's discretization error together; `objective`'s own
+    response without it, or where the finer model does not solve. The warped neo-Hookean nulls'
+    softer sphere under the punch is the coarse mesh's: seed 14, p 9e-27 on the tracked motion,
+    8.6e-25 less the coarse mesh's response, 1 less the medium mesh's. `used` (a list) is told
+    which mesh's response was taken."""
+    used = [] if used is None else used
+    if finer is not None:
+        try:
+            e = tracker_error(finer(), params, predicted_by=objective)
+            used.append("final mesh")
+            return e
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as e:
+            log.warning("the tracker's response to the finer mesh's motion failed (%s): the tracking mesh's "
+                        "own response is used", e)
+    used.append("tracking mesh")
+    return tracker_error(objective, params)
+
+
 def confirm_by_tracker_response(d: dict, objective, params: dict, fitted: list, log_scale, tracker_error,
                                 alpha=ALPHA, min_drop=MIN_DROP) -> dict:
     """The diagnosis `d` with each geometric effect (an inclusion) that passes its test, or

@@ -24,22 +24,31 @@ log = logging.getLogger(__name__)
 __all__ = ["tracker_error", "with_corrected_data", "continue_on_tracker_response"]
 
 
-def tracker_error(objective: Objective, params: dict, bundle, flow, tracking_mesh) -> np.ndarray:
+def tracker_error(objective: Objective, params: dict, bundle, flow, tracking_mesh, predicted_by=None) -> np.ndarray:
     """(K, N, 3) m: the tracker's response to the model's motion at `params` minus the
-    observation operator's prediction of it, frame pair by frame pair."""
+    observation operator's prediction of it, frame pair by frame pair. With `predicted_by`
+    (the same law and data on another model mesh, usually the tracking mesh, where `objective`
+    is on a finer one), the prediction is that objective's: the error then holds the tracker's
+    error and the coarser mesh's discretization error together."""
     from ..imaging.response import tracker_response
 
     if objective.data.u_of.shape[0] != flow.sizes["frame"]:
         raise ValueError("the objective's frame pairs are not the flow's (merged pairs?)")
-    model = objective.forward.model(objective.law, {**params, **objective.fixed})
-    h = solve_history(model, objective.t_drive, objective.f_drive, objective.control, objective.options)
+    u = _motion(objective, params)
     d = objective.data
-    u = np.asarray(h.u)
     at_frames = objective.model_motion(objective.t_drive, u)[1]           # linear in time, as the objective
     response = tracker_response(bundle, flow, tracking_mesh, objective.forward.mesh,
                                 at_frames(np.concatenate([d.t0[:1], d.t1])))
+    if predicted_by is not None:
+        objective, u = predicted_by, _motion(predicted_by, params)
     predicted = objective.model_motion(objective.t_drive, objective.at_data_nodes(u))[0] * (d.t1 - d.t0)[:, None, None]
     return response - predicted
+
+
+def _motion(objective: Objective, params: dict) -> np.ndarray:
+    """The model's nodal motion (time, node, 3) at `params` over the objective's drive."""
+    model = objective.forward.model(objective.law, {**params, **objective.fixed})
+    return np.asarray(solve_history(model, objective.t_drive, objective.f_drive, objective.control, objective.options).u)
 
 
 def with_corrected_data(objective: Objective, error: np.ndarray) -> Objective:
