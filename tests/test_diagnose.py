@@ -310,7 +310,7 @@ def test_on_warped_volumes_the_reported_parameters_are_fitted_on_the_corrected_m
     # the check took the response to the finer mesh's model (built for it), predicted by the step's
     checked, predictor = by[0]
     assert predictor is not None and predictor is not checked and checked in made and predictor.law == "elastic"
-    assert step["diagnosis"]["tracker_check"]["response_mesh"] == "final mesh"
+    assert step["diagnosis"]["tracker_check"]["response_mesh"] == "finer mesh"
     assert all(p is None for _, p in by[1:])       # the corrected fits: each mesh's own response
     # the check's response at the step's fit, then one per candidate at its own fit
     assert seen[0] == pytest.approx({k: step["params"][k] for k in seen[0]}) and len(seen) == 3

@@ -25,9 +25,12 @@ WARPED_CAVEAT = ("the bundle's volumes were made by warping its first volume (li
                  "for an effect at the usual level (each of 3 warped elastic null data sets had one at p 0.005, "
                  f"predicted drop 1.4-2.6 %), so an effect needs p < {WARPED_ALPHA:g}, or p < {ALPHA:g} with a "
                  f"predicted drop of {100 * STRONG_DROP:g} % or more (score.passes); and a sphere of other "
-                 "stiffness under the punch can be the tracker's at any level (warped Darcy-flow data gained one), so "
-                 "an inclusion must also pass on the tracked motion less the tracker's response to the fitted model "
-                 "(score.confirm_by_tracker_response). Moved-scatterer volumes (mode scatter) are what the "
+                 "stiffness under the punch can be the tracker's or the coarse mesh's at any level (warped Darcy-flow "
+                 "data and neo-Hookean nulls gained one), so an inclusion must also pass on the tracked motion less "
+                 "the tracker's response to the fitted model on a finer mesh, less the tracking mesh's prediction "
+                 "(score.confirm_by_tracker_response, score.tracker_and_mesh_error); and discover withdraws an "
+                 "addition its last refit returns to the null (discover.unresolved_addition). Moved-scatterer "
+                 "volumes (mode scatter) are what the "
                  "diagnosis was validated on")
 
 

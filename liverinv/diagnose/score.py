@@ -254,7 +254,7 @@ def tracker_and_mesh_error(tracker_error, objective, params: dict, finer=None, u
     if finer is not None:
         try:
             e = tracker_error(finer(), params, predicted_by=objective)
-            used.append("final mesh")
+            used.append("finer mesh")
             return e
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as e:
             log.warning("the tracker's response to the finer mesh's motion failed (%s): the tracking mesh's "
@@ -296,7 +296,7 @@ def confirm_by_tracker_response(d: dict, objective, params: dict, fitted: list, 
         if not check[e]["passes"]:
             vetoed[e] = (f"not on the tracked motion less the tracker's own error at the fit "
                          f"(p = {row['p_value']:.2g}, predicted drop {100 * row['predicted_drop']:.1f} % there): "
-                         "taken for the tracker's")
+                         "taken for the tracker's (or, with a finer mesh's response, the tracking mesh's)")
     eligible = [e for e in d["eligible"] if e not in vetoed]
     return dict(d, eligible=eligible, significant=[e for e in d["significant"] if e not in vetoed],
                 recommended=recommend(d["rows"], eligible, alpha, min_drop, vetoed), vetoed=vetoed,
