@@ -50,8 +50,9 @@ def objective_of_fit(fit, bundle, flow, mesh, model_mesh=None, observation=None,
 def finer_objective(args, obj):
     """A function returning the fit's objective on a finer model mesh (the medium preset of
     the model's cylinder, written beside --out, as `discover --final-mesh auto`), for the
-    inclusion check on warped volumes (`score.tracker_and_mesh_error`); None when the model
-    mesh is not a cylinder or is already at least as fine."""
+    inclusion check on warped volumes (`score.tracker_and_mesh_error`); the function raises
+    ValueError (and the check takes the tracking mesh's own response) when the model mesh is
+    not a cylinder or is already at least as fine."""
     from ..meshgen import refined_model_mesh
 
     path = args.out.with_name(args.out.stem + "_model_mesh.msh")
@@ -68,7 +69,7 @@ def finer_objective(args, obj):
 def run(args) -> int:
     from ..cli import UserError
     from ..diagnose.files import diagnosis_dataset, explain, imaging_calibration, tracker_error_for
-    from ..diagnose.score import confirm_by_tracker_response, diagnose, tracker_and_mesh_error
+    from ..diagnose.score import confirm_by_tracker_response, diagnose
     from ..diagnose.splits import SPLIT_MEANING
     from ..fileio import write_netcdf
     from ..laws import PARAMS
@@ -81,12 +82,9 @@ def run(args) -> int:
         log_scale = [PARAMS[n].scale == "log" for n in names]
         d = diagnose(obj, params, names, log_scale, float(ds.phi_vol), args.effects, alpha=calibration["alpha"])
         if calibration["confirm_geometric"]:
-            used = []
-            error = tracker_error_for(args.bundle, args.flow, args.mesh)
-            d = confirm_by_tracker_response(d, obj, params, names, log_scale, lambda o, p: tracker_and_mesh_error(
-                error, o, p, finer_objective(args, obj), used), alpha=calibration["alpha"])
-            if "tracker_check" in d:
-                d["tracker_check"]["response_mesh"] = used[-1] if used else ""
+            d = confirm_by_tracker_response(d, obj, params, names, log_scale,
+                                            tracker_error_for(args.bundle, args.flow, args.mesh),
+                                            alpha=calibration["alpha"], finer=finer_objective(args, obj))
     except (ValueError, KeyError) as e:
         raise UserError(str(e)) from None
     caveat = calibration["caveat"]

@@ -148,13 +148,18 @@ class Effect:
         """Is the one-step amplitude `theta` physical (two-sided effects: a positive stiffness)?"""
         return theta > -0.95 if self.sign == 0 else theta * self.sign > 0
 
+    @property
+    def amplitude_param(self) -> str | None:
+        """The law's parameter that carries the amplitude (inc_scale for an inclusion)."""
+        return "inc_scale" if self.geometric else self.to_param.param if self.to_param else None
+
     def amplitude_of(self, params: dict, sd: dict | None = None):
         """The amplitude (units of the law's parameter) of fitted `params` and, with their SDs
         `sd` (SI), its SD by the delta method: (amplitude, SD or None: none given, or the
         parameter at a bound of its range, where the SD says nothing: a 10x sphere of warped
         data ends at contrast 50); None for an effect that saturates (`far`: a bonded punch
         ends at its bound) or whose parameter is not in `params`."""
-        name = "inc_scale" if self.geometric else self.to_param.param if self.to_param else None
+        name = self.amplitude_param
         if self.far is not None or name not in params:
             return None
         p = float(params[name])

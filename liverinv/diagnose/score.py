@@ -264,11 +264,14 @@ def tracker_and_mesh_error(tracker_error, objective, params: dict, finer=None, u
 
 
 def confirm_by_tracker_response(d: dict, objective, params: dict, fitted: list, log_scale, tracker_error,
-                                alpha=ALPHA, min_drop=MIN_DROP) -> dict:
+                                alpha=ALPHA, min_drop=MIN_DROP, finer=None) -> dict:
     """The diagnosis `d` with each geometric effect (an inclusion) that passes its test, or
     is significant, tested again on the tracked motion less the tracker's own error at the fit,
     and dropped (`vetoed`) when it does not pass there.
 
+    `finer`: a function returning the fitted law's objective on a finer model mesh, whose
+    motion the tracker's response is then taken to (`tracker_and_mesh_error`; the tracker
+    check's `response_mesh` says which mesh's was used).
     `tracker_error(objective, params)`: the tracker's response to the fitted model's motion
     less the observation operator's prediction of it (`identify.response.tracker_error`: the
     first volume warped by the model's motion and tracked with the flow's options). That error
@@ -285,7 +288,8 @@ def confirm_by_tracker_response(d: dict, objective, params: dict, fitted: list, 
         return d
     from ..identify.response import with_corrected_data
     t0 = _time.perf_counter()
-    corrected = with_corrected_data(objective, tracker_error(objective, params))
+    used = []          # which mesh's response (`tracker_and_mesh_error`; `finer`: the finer mesh's objective)
+    corrected = with_corrected_data(objective, tracker_and_mesh_error(tracker_error, objective, params, finer, used))
     check, vetoed = {}, {}
     for e in geo:
         # measured against the corrected Phi_vol, the check's own solve's
@@ -301,7 +305,7 @@ def confirm_by_tracker_response(d: dict, objective, params: dict, fitted: list, 
     return dict(d, eligible=eligible, significant=[e for e in d["significant"] if e not in vetoed],
                 recommended=recommend(d["rows"], eligible, alpha, min_drop, vetoed), vetoed=vetoed,
                 tracker_check=dict(effects=check, phi_vol_corrected=again["phi_vol"],
-                                   wall_s=_time.perf_counter() - t0),
+                                   wall_s=_time.perf_counter() - t0, response_mesh=used[-1]),
                 n_solves=d["n_solves"] + 1 + len(geo),     # the response's solve, the checks
                 wall_s=d["wall_s"] + _time.perf_counter() - t0)
 
