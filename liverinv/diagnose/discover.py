@@ -285,7 +285,8 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
             stopped = f"the refit with {', '.join(r['effect'] for r in eligible)} failed"
             break
         key = min(trials, key=lambda e: trials[e][5]["best"]["phi"])
-        before = (current_law, fixed, list(held), list(added), obj, params)
+        kept_obj = obj         # the last kept step's objective, for the final fits if this addition is not kept
+        before = (current_law, fixed, list(held), list(added), kept_obj, params)
         row, new_law, new_fixed, obj, fit, res, effects, swap = trials[key]
         effect = row["effect"]
         n_search = 0
@@ -301,7 +302,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
             res = {"best": final["best"]}
             if res["best"] is None:
                 stopped = f"the refit with {effect} on all frames failed"
-                obj = before[4]      # the last kept step's objective, for the final fits
+                obj = kept_obj
                 break
         elif n_trials > 1 or _needs_multistart(new_law):
             # the winner of the trials, to convergence; with the multi-start stage for a law with
@@ -317,7 +318,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
         if actual_phi < MIN_DROP:
             stopped = (f"the refit with {effect} lowered Phi by {100 * actual_phi:.2f} % of Phi_vol only "
                        f"(< {100 * MIN_DROP:g} %); not kept")
-            obj = before[4]
+            obj = kept_obj
             break
         states.append(before)
         added = effects
@@ -333,7 +334,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
                                  predicted_drop_vol=row["predicted_drop"],
                                  replaced=f"{swap[0]} -> {swap[1]}" if swap else "")
 
-    def finish(current_law, fixed, held, obj, params):   # the final and the corrected fit of a step's law
+    def finish():      # the final and the corrected fit of the current law
         final = corrected = None
         candidates = [("tracking mesh", obj, lambda: objective(current_law, fixed, None), dict(params))]
         if final_objective_for is not None:
@@ -374,7 +375,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
 
     withdrawn = []
     while True:
-        final, corrected = finish(current_law, fixed, held, obj, params)
+        final, corrected = finish()
         why = unresolved_addition(steps[-1]["added"], steps[-1]["params"], final, corrected) if len(steps) > 1 else ""
         if not why:
             break
