@@ -83,14 +83,37 @@ def tracker_response(bundle, flow, tracking_mesh, model_mesh, u_frames: np.ndarr
             return warp_volume(ref, model_vw.to_grid(grid.vec_to_vox(u_nodes)), coef)
     track_vw = VoxelWeights.build(tracking_mesh.points, tracking_mesh.cells, grid, stride=stride, window=window)
     tracker = NodalTracker(track_vw, tracking_mesh.points, opts)
-    tracker.start(volume(u_frames[0]))
     out = np.zeros((u_frames.shape[0] - 1, tracking_mesh.n_nodes, 3))
-    for k in range(1, u_frames.shape[0]):
-        v, _ = tracker.step(volume(u_frames[k]))
+    # warped volumes are independent of each other; moved scatterers draw noise in order
+    stateless = imaging.get("mode") != "scatter"
+    volumes = rendered_ahead(volume, u_frames, ahead=3 if stateless else 2, workers=2 if stateless else 1)
+    tracker.start(next(volumes))
+    for k, vol in enumerate(volumes, start=1):
+        v, _ = tracker.step(vol)
         out[k - 1] = grid.vec_to_m(v)
     log.info("tracker response (%s): %d frame pairs rendered and tracked in %.1f s",
              imaging.get("mode", "warp"), len(out), time.perf_counter() - t0)
     return out
+
+
+def rendered_ahead(render, items, ahead: int = 2, workers: int = 1):
+    """``render(item)`` for each of `items`, in order, computed in worker threads up to
+    `ahead` items before they are taken, so that rendering (interpolation that releases the
+    GIL) runs on the second core while the caller tracks the previous volume. With one worker
+    the calls run in order, so a scene's random draws come out as in a plain loop; more
+    workers only for a `render` without state."""
+    from collections import deque
+    from concurrent.futures import ThreadPoolExecutor
+
+    items = iter(items)
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="render") as pool:
+        pending = deque(pool.submit(render, it) for _, it in zip(range(ahead), items))
+        while pending:
+            done = pending.popleft()
+            nxt = next(items, None)
+            if nxt is not None:
+                pending.append(pool.submit(render, nxt))
+            yield done.result()
 
 
 def bundle_imaging(bundle) -> dict:
