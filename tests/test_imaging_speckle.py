@@ -4,7 +4,7 @@ import numpy as np
 
 from liverinv.imaging.analytic import box_tet10
 from liverinv.imaging.grid import ImageGrid
-from liverinv.imaging.sequence import ImagingOptions, SpeckleScene, inverse_map
+from liverinv.imaging.sequence import ImagingOptions, SpeckleScene, inverse_map, rendered_ahead
 from liverinv.imaging.weights import VoxelWeights
 
 
@@ -72,8 +72,6 @@ def test_inverse_map_from_voxel_centres_takes_the_grid_values_exactly():
 
 
 def test_volumes_rendered_ahead_come_in_order_and_as_in_a_plain_loop():
-    from liverinv.imaging.response import rendered_ahead
-
     P, grid, vw, a = _scene(3, mode="scatter", noise_db=-20.0, decorrelation=0.05)
     _, _, _, b = _scene(3, mode="scatter", noise_db=-20.0, decorrelation=0.05)
     shifts = [np.tile(grid.vec_to_m([0.0, 0.0, 0.3 * k]), (len(P), 1)) for k in range(5)]
@@ -81,6 +79,7 @@ def test_volumes_rendered_ahead_come_in_order_and_as_in_a_plain_loop():
     ahead = list(rendered_ahead(b.frame, shifts, ahead=2))      # one worker: the same draws
     assert len(ahead) == 5 and all(np.array_equal(p, q) for p, q in zip(plain, ahead))
     _, _, _, w = _scene(3)                                      # warped: stateless, two workers
+    assert w.stateless and not a.stateless and not _scene(3, bmode_noise=0.01)[3].stateless
     plain = [w.frame(u) for u in shifts]
     assert all(np.array_equal(p, q) for p, q in zip(plain, rendered_ahead(w.frame, shifts, ahead=3, workers=2)))
     assert not np.array_equal(plain[0], plain[4])

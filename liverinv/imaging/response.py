@@ -41,7 +41,7 @@ import numpy as np
 from scipy import ndimage
 
 from .observation import track_options_of
-from .sequence import SpeckleScene, warp_volume
+from .sequence import SpeckleScene, rendered_ahead, warp_volume
 from .tracking import NodalTracker
 from .weights import VoxelWeights
 
@@ -94,26 +94,6 @@ def tracker_response(bundle, flow, tracking_mesh, model_mesh, u_frames: np.ndarr
     log.info("tracker response (%s): %d frame pairs rendered and tracked in %.1f s",
              imaging.get("mode", "warp"), len(out), time.perf_counter() - t0)
     return out
-
-
-def rendered_ahead(render, items, ahead: int = 2, workers: int = 1):
-    """``render(item)`` for each of `items`, in order, computed in worker threads up to
-    `ahead` items before they are taken, so that rendering (interpolation that releases the
-    GIL) runs on the second core while the caller tracks the previous volume. With one worker
-    the calls run in order, so a scene's random draws come out as in a plain loop; more
-    workers only for a `render` without state."""
-    from collections import deque
-    from concurrent.futures import ThreadPoolExecutor
-
-    items = iter(items)
-    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="render") as pool:
-        pending = deque(pool.submit(render, it) for _, it in zip(range(ahead), items))
-        while pending:
-            done = pending.popleft()
-            nxt = next(items, None)
-            if nxt is not None:
-                pending.append(pool.submit(render, nxt))
-            yield done.result()
 
 
 def bundle_imaging(bundle) -> dict:

@@ -37,7 +37,7 @@ from .weights import VoxelWeights
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ImagingOptions", "SpeckleScene", "inverse_map", "warp_volume"]
+__all__ = ["ImagingOptions", "SpeckleScene", "inverse_map", "rendered_ahead", "warp_volume"]
 
 
 @dataclass
@@ -148,6 +148,12 @@ class SpeckleScene:
         log.info("speckle scene: %d tissue and %d background scatterers", len(self.tissue_pos),
                  len(bg_pos))
 
+    @property
+    def stateless(self) -> bool:
+        """Whether frames are independent of the order they are made in (warped volumes
+        without B-mode noise: no random draw per frame), so several may render at once."""
+        return self.opt.mode == "warp" and self.opt.bmode_noise == 0
+
     def frame(self, u_nodes_m: np.ndarray) -> np.ndarray:
         """B-mode volume (float32 in [0, 1]) for nodal displacements `u_nodes_m` (n, 3) m."""
         g, opt = self.grid, self.opt
@@ -174,3 +180,23 @@ class SpeckleScene:
         if opt.bmode_noise > 0:
             out = np.clip(out + opt.bmode_noise * self.rng.standard_normal(g.shape), 0, 1)
         return out.astype(np.float32)
+
+
+def rendered_ahead(render, items, ahead: int = 2, workers: int = 1):
+    """``render(item)`` for each of `items`, in order, computed in worker threads up to
+    `ahead` items before they are taken, so that rendering (interpolation that releases the
+    GIL) runs on the second core while the caller tracks the previous volume. With one worker
+    the calls run in order, so a scene's random draws come out as in a plain loop; more
+    workers only for a `render` without state."""
+    from collections import deque
+    from concurrent.futures import ThreadPoolExecutor
+
+    items = iter(items)
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="render") as pool:
+        pending = deque(pool.submit(render, it) for _, it in zip(range(ahead), items))
+        while pending:
+            done = pending.popleft()
+            nxt = next(items, None)
+            if nxt is not None:
+                pending.append(pool.submit(render, nxt))
+            yield done.result()

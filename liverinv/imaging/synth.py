@@ -35,7 +35,7 @@ import numpy as np
 from .analytic import analytic_run, triangle_depth
 from .bundle import Indenter, write_bundle
 from .grid import ImageGrid, paper_grid
-from .sequence import ImagingOptions, SpeckleScene
+from .sequence import ImagingOptions, SpeckleScene, rendered_ahead
 from .speckle import Transducer
 from .weights import VoxelWeights
 
@@ -177,10 +177,14 @@ def synthesize(study: dict, base_dir, out, truth_out=None, source="study", truth
 
     def volumes():
         from tqdm import tqdm
+        # rendered ahead in worker threads while the bundle writes (two at once when the
+        # scene's frames do not depend on their order)
+        frames = rendered_ahead(scene.frame, u_frames, ahead=3 if scene.stateless else 2,
+                                workers=2 if scene.stateless else 1)
         with tqdm(total=len(times), desc="render", unit="volume", disable=None) as bar:
-            for k in range(len(times)):
+            for k, vol in enumerate(frames):
                 log.info("frame %d/%d", k + 1, len(times))
-                yield scene.frame(u_frames[k])
+                yield vol
                 bar.update(1)
 
     ind_cfg = im["indenter"]
