@@ -222,14 +222,17 @@ class NodalTracker:
         # with the frame-k gradient, I(p + v_n) ~ I(p + V) + G . (v_n - V), so
         # b_n = sum_i N g (J1 - J0 - G.V) + (sum_i N g G^T) v_n: sparse products only.
         J0 = self.J
+        m_at = M = None
         for it in range(1, opt.max_iterations + 1):
             v_at = v
             vt = self.vw.interpolate(v)
             J1, inside = self._sample_next(coef, base + vt)
             m = (inside & ok0).astype(float)
             r = m * (J1 - J0 - np.einsum("ij,ij->i", G, vt))
-            M = W @ np.column_stack([m * g[:, a_] * G[:, b_] for a_, b_ in _PAIRS])
-            M = M[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+            if m_at is None or not np.array_equal(m, m_at):     # the rows in view change rarely
+                M = W @ np.column_stack([m * g[:, a_] * G[:, b_] for a_, b_ in _PAIRS])
+                M = M[:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+                m_at = m
             b = W @ (g * r[:, None]) + np.einsum("nij,nj->ni", M, v)
             delta = -np.einsum("nij,nj->ni", Ainv, b)
             v = v + delta
