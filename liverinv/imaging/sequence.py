@@ -191,12 +191,12 @@ def rendered_ahead(render, items, ahead: int = 2, workers: int = 1):
     from collections import deque
     from concurrent.futures import ThreadPoolExecutor
 
-    items = iter(items)
+    items, end = iter(items), object()
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="render") as pool:
         pending = deque(pool.submit(render, it) for _, it in zip(range(ahead), items))
         while pending:
             done = pending.popleft()
-            nxt = next(items, None)
-            if nxt is not None:
+            nxt = next(items, end)
+            if nxt is not end:
                 pending.append(pool.submit(render, nxt))
             yield done.result()
