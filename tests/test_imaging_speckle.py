@@ -76,10 +76,10 @@ def test_volumes_rendered_ahead_come_in_order_and_as_in_a_plain_loop():
     _, _, _, b = _scene(3, mode="scatter", noise_db=-20.0, decorrelation=0.05)
     shifts = [np.tile(grid.vec_to_m([0.0, 0.0, 0.3 * k]), (len(P), 1)) for k in range(5)]
     plain = [a.frame(u) for u in shifts]
-    ahead = list(rendered_ahead(b.frame, shifts, ahead=2))      # one worker: the same draws
+    ahead = list(rendered_ahead(b.frame, shifts))      # one worker: the same draws
     assert len(ahead) == 5 and all(np.array_equal(p, q) for p, q in zip(plain, ahead))
     _, _, _, w = _scene(3)                                      # warped: stateless, two workers
     assert w.stateless and not a.stateless and not _scene(3, bmode_noise=0.01)[3].stateless
     plain = [w.frame(u) for u in shifts]
-    assert all(np.array_equal(p, q) for p, q in zip(plain, rendered_ahead(w.frame, shifts, ahead=3, workers=2)))
+    assert all(np.array_equal(p, q) for p, q in zip(plain, rendered_ahead(w.frame, shifts, stateless=True)))
     assert not np.array_equal(plain[0], plain[4])

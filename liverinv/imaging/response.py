@@ -85,8 +85,7 @@ def tracker_response(bundle, flow, tracking_mesh, model_mesh, u_frames: np.ndarr
     tracker = NodalTracker(track_vw, tracking_mesh.points, opts)
     out = np.zeros((u_frames.shape[0] - 1, tracking_mesh.n_nodes, 3))
     # warped volumes are independent of each other; moved scatterers draw noise in order
-    stateless = imaging.get("mode") != "scatter"
-    volumes = rendered_ahead(volume, u_frames, ahead=3 if stateless else 2, workers=2 if stateless else 1)
+    volumes = rendered_ahead(volume, u_frames, stateless=imaging.get("mode") != "scatter")
     tracker.start(next(volumes))
     for k, vol in enumerate(volumes, start=1):
         v, _ = tracker.step(vol)

@@ -182,15 +182,16 @@ class SpeckleScene:
         return out.astype(np.float32)
 
 
-def rendered_ahead(render, items, ahead: int = 2, workers: int = 1):
-    """``render(item)`` for each of `items`, in order, computed in worker threads up to
-    `ahead` items before they are taken, so that rendering (interpolation that releases the
-    GIL) runs on the second core while the caller tracks the previous volume. With one worker
-    the calls run in order, so a scene's random draws come out as in a plain loop; more
-    workers only for a `render` without state."""
+def rendered_ahead(render, items, stateless: bool = False):
+    """``render(item)`` for each of `items`, in order, computed in worker threads a few items
+    before they are taken, so that rendering (interpolation that releases the GIL) runs on the
+    second core while the caller tracks or writes the previous volume. One worker, the calls in
+    order, so that a scene's random draws come out as in a plain loop; two at once when the
+    `render` is `stateless` (`SpeckleScene.stateless`, a warp without noise)."""
     from collections import deque
     from concurrent.futures import ThreadPoolExecutor
 
+    workers, ahead = (2, 3) if stateless else (1, 2)
     items, end = iter(items), object()
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="render") as pool:
         pending = deque(pool.submit(render, it) for _, it in zip(range(ahead), items))

@@ -179,8 +179,7 @@ def synthesize(study: dict, base_dir, out, truth_out=None, source="study", truth
         from tqdm import tqdm
         # rendered ahead in worker threads while the bundle writes (two at once when the
         # scene's frames do not depend on their order)
-        frames = rendered_ahead(scene.frame, u_frames, ahead=3 if scene.stateless else 2,
-                                workers=2 if scene.stateless else 1)
+        frames = rendered_ahead(scene.frame, u_frames, stateless=scene.stateless)
         with tqdm(total=len(times), desc="render", unit="volume", disable=None) as bar:
             for k, vol in enumerate(frames):
                 log.info("frame %d/%d", k + 1, len(times))
