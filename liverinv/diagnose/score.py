@@ -241,26 +241,22 @@ def recommend(rows, eligible, alpha=ALPHA, min_drop=MIN_DROP, vetoed=()) -> str:
     return eligible[0]
 
 
-def tracker_and_mesh_error(tracker_error, objective, params: dict, finer=None, used=None):
+def tracker_and_mesh_error(tracker_error, objective, params: dict, finer=None):
     """The error the inclusion check (`confirm_by_tracker_response`) takes from the tracked
-    motion: with `finer` (a function returning the same law's objective on a finer model mesh),
-    the tracker's response to the finer mesh's motion less `objective`'s prediction, so the
-    tracker's error and the tracking mesh's discretization error together; `objective`'s own
-    response without it, or where the finer model does not solve. The warped neo-Hookean nulls'
-    softer sphere under the punch is the coarse mesh's: seed 14, p 9e-27 on the tracked motion,
-    8.6e-25 less the coarse mesh's response, 1 less the medium mesh's. `used` (a list) is told
-    which mesh's response was taken."""
-    used = [] if used is None else used
+    motion, and which mesh's response it is ("finer mesh" or "tracking mesh"): with `finer` (a
+    function returning the same law's objective on a finer model mesh), the tracker's response
+    to the finer mesh's motion less `objective`'s prediction, so the tracker's error and the
+    tracking mesh's discretization error together; `objective`'s own response without it, or
+    where the finer model does not solve. The warped neo-Hookean nulls' softer sphere under the
+    punch is the coarse mesh's: seed 14, p 9e-27 on the tracked motion, 8.6e-25 less the coarse
+    mesh's response, 1 less the medium mesh's."""
     if finer is not None:
         try:
-            e = tracker_error(finer(), params, predicted_by=objective)
-            used.append("finer mesh")
-            return e
+            return tracker_error(finer(), params, predicted_by=objective), "finer mesh"
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as e:
             log.warning("the tracker's response to the finer mesh's motion failed (%s): the tracking mesh's "
                         "own response is used", e)
-    used.append("tracking mesh")
-    return tracker_error(objective, params)
+    return tracker_error(objective, params), "tracking mesh"
 
 
 def confirm_by_tracker_response(d: dict, objective, params: dict, fitted: list, log_scale, tracker_error,
@@ -288,8 +284,8 @@ def confirm_by_tracker_response(d: dict, objective, params: dict, fitted: list, 
         return d
     from ..identify.response import with_corrected_data
     t0 = _time.perf_counter()
-    used = []          # which mesh's response (`tracker_and_mesh_error`; `finer`: the finer mesh's objective)
-    corrected = with_corrected_data(objective, tracker_and_mesh_error(tracker_error, objective, params, finer, used))
+    error, response_mesh = tracker_and_mesh_error(tracker_error, objective, params, finer)
+    corrected = with_corrected_data(objective, error)
     check, vetoed = {}, {}
     for e in geo:
         # measured against the corrected Phi_vol, the check's own solve's
@@ -305,7 +301,7 @@ def confirm_by_tracker_response(d: dict, objective, params: dict, fitted: list, 
     return dict(d, eligible=eligible, significant=[e for e in d["significant"] if e not in vetoed],
                 recommended=recommend(d["rows"], eligible, alpha, min_drop, vetoed), vetoed=vetoed,
                 tracker_check=dict(effects=check, phi_vol_corrected=again["phi_vol"],
-                                   wall_s=_time.perf_counter() - t0, response_mesh=used[-1]),
+                                   wall_s=_time.perf_counter() - t0, response_mesh=response_mesh),
                 n_solves=d["n_solves"] + 1 + len(geo),     # the response's solve, the checks
                 wall_s=d["wall_s"] + _time.perf_counter() - t0)
 
