@@ -75,7 +75,12 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          # grid (3 mm off axis in x and y, 11.3 mm deep)
          "shear_nlbulk": ("SBR", dict(SR, D2=3e-4, k1=0.0, tau_k1=1.0), {}, "elastic"),
          "shear_inclusion": ("SR", SR, inclusion(10.0), "elastic"),
-         "inclusion_x8_off": ("elastic", E, inclusion(8.0, 0.004, (-0.003, 0.003, 0.019)), "elastic")}
+         "inclusion_x8_off": ("elastic", E, inclusion(8.0, 0.004, (-0.003, 0.003, 0.019)), "elastic"),
+         # session 25, held out: the quartic bulk term behind SR; bulk relaxation with a sliding
+         # bottom; strain stiffening with shear relaxation behind a neo-Hookean base
+         "sr_nlbulk": ("SBR", dict(SR, D2=3e-4, k1=0.0, tau_k1=1.0), {}, "SR"),
+         "bulk_slip": ("BR", dict(E, D2=1000.0, k1=0.5, tau_k1=0.3), {"contact": {"support": "sliding"}}, "elastic"),
+         "stiffening_shear": ("SR", SR, {"loading": SHALLOW}, "NH")}
 
 
 def mesh_file(name, out):
@@ -123,6 +128,9 @@ def main(argv=None):
     ap.add_argument("--mode", choices=["scatter", "warp"], default="scatter",
                     help="volumes of moved scatterers with receiver noise and decorrelation (the study's), or "
                          "the first volume warped (synthesize's default, the paper's way; no receiver noise)")
+    ap.add_argument("--bmode-noise", type=float, default=0.0,
+                    help="warp mode: std of additive noise on each B-mode volume (0..1 units; the speckle's own std "
+                         "is about 0.35)")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     mesh, tmesh = mesh_file(args.mesh, args.out), mesh_file(args.truth_mesh, args.out)
@@ -137,7 +145,8 @@ def main(argv=None):
             if args.mode == "warp":
                 study["imaging"] = {k: v for k, v in study["imaging"].items() if k not in ("noise_db", "decorrelation")}
                 study["imaging"]["mode"] = "warp"
-                tag = f"{case}_warp_s{seed}"
+                study["imaging"]["bmode_noise"] = args.bmode_noise
+                tag = f"{case}_warp{f'n{args.bmode_noise:g}' if args.bmode_noise else ''}_s{seed}"
             if args.frames:
                 study["loading"] = dict(base["loading"], frames=args.frames)
                 study["imaging"].update(frames=args.frames, frame_rate_hz=None)   # evenly over the cycle
