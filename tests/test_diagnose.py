@@ -728,3 +728,29 @@ def test_the_withdrawal_rule_reads_the_most_accurate_fit_and_keeps_saturating_ef
     assert CATALOG["inclusion"].amplitude_z(bound["params"], bound["sd"]) is None
     assert unresolved_addition("inclusion", dict(inc_scale=50.0), None, bound) == ""
     assert "changed sign" in unresolved_addition("inclusion", dict(inc_scale=0.3), None, bound)
+
+
+def test_the_corrected_fit_takes_the_finer_mesh_unless_a_coarser_one_fits_clearly_better():
+    """corrected_mesh_choice on planted residuals: 60 clusters of 40 rows, 80 % of each row's
+    error shared in its cluster (tracking error is correlated over a centimetre), each mesh
+    with its own model error, constant in a cluster. Model errors of 10 % of the error's RMS on
+    both meshes: the coarser one's Phi is 1.4 % lower, by chance, and the finer one is chosen;
+    the finer mesh's model error 80 %: chosen the coarser; residuals on other rows: the lower
+    Phi."""
+    from liverinv.diagnose.discover import corrected_mesh_choice
+    rng = np.random.default_rng(0)
+    g = np.repeat(np.arange(60), 40)
+    e = np.sqrt(0.8) * rng.standard_normal(60)[g] + np.sqrt(0.2) * rng.standard_normal(g.size)
+    a, b, c = (rng.standard_normal(60)[g] for _ in range(3))
+
+    def cand(r, groups=g):
+        return ({"residual": r, "phi": float(r @ r)}, None, None, groups)
+    tie = {"tracking mesh": cand(e + 0.1 * a), "final mesh": cand(e + 0.1 * b)}
+    assert tie["final mesh"][0]["phi"] / tie["tracking mesh"][0]["phi"] == pytest.approx(1.0142, abs=1e-4)
+    label, tests = corrected_mesh_choice(tie)
+    assert label == "final mesh" and tests["tracking mesh"]["z"] == pytest.approx(0.34, abs=0.01)
+    worse = {"tracking mesh": cand(e + 0.1 * a), "final mesh": cand(e + 0.8 * c)}
+    label, tests = corrected_mesh_choice(worse)
+    assert label == "tracking mesh" and tests["tracking mesh"]["z"] > 2.33
+    other = {"tracking mesh": cand((e + 0.1 * a)[:-40], g[:-40]), "final mesh": cand(e + 0.1 * b)}
+    assert corrected_mesh_choice(other) == ("tracking mesh", {})

@@ -200,7 +200,7 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
     if corrected:
         steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + list(corrected.get("warnings", []))
         attrs = dict(attrs, tracker_response=json.dumps(
-            {k: corrected.get(k) for k in ("mesh", "error_rms_m", "phi_common", "phi", "phi_vol", "phi_ind",
+            {k: corrected.get(k) for k in ("mesh", "mesh_test", "error_rms_m", "phi_common", "phi", "phi_vol", "phi_ind",
                                            "noise", "n_solves", "wall_s") if k in corrected}
             | {"params_before": (final["params"] if final.get("params") and final.get("kept", True)
                                  else tracking[-1])}))
