@@ -47,9 +47,11 @@ from __future__ import annotations
 import json
 import logging
 import time as _time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from scipy import stats
+from threadpoolctl import threadpool_limits
 
 from .effects import CATALOG, INCLUSION_DEPTHS_M, INCLUSION_RADII_M, available_effects, sphere_allowed
 
@@ -102,35 +104,37 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float | 
         for scan in (scans or {}).get(e.name) or e.scan_points(fm):
             dirs.append(e.direction(model, full, EPS, scan, fm))
             cols.append((e, scan))
-    ev = objective.evaluate_model(dict(params), model, dirs, EPS)
-    if not ev.ok:
-        raise ValueError(f"the forward solve at the fit's optimum failed: {ev.message}")
+    # effects that saturate far from their null (a bonded punch, a sliding bottom) also by the
+    # secant to their full size: one solve each, its residual's change a column like the others
+    # and effects far from linear in their amplitude (Darcy flow) by secants at a scan of it.
+    # They are solved in a second thread while this one makes the sensitivity step (the sparse
+    # factorizations and most array work release the GIL), with one thread each in MKL and
+    # OpenBLAS: PARDISO's two threads in each solve made the pair no faster than one after the
+    # other (the warped neo-Hookean null of seed 15: 9.6 s, 9.0 s overlapped, 6.7 s so)
+    jobs = [(e, a) for e in cands for a in e.secant_points()]
+    with threadpool_limits(limits=1 if jobs else None), \
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="secant") as pool:
+        secant_solves = [pool.submit(_secant_solve, objective, params, model, full, fm, e, a) for e, a in jobs]
+        ev = objective.evaluate_model(dict(params), model, dirs, EPS)
+        if not ev.ok:
+            for f in secant_solves:
+                f.cancel()
+            raise ValueError(f"the forward solve at the fit's optimum failed: {ev.message}")
+        solved = [f.result() for f in secant_solves]
     r, J = ev.residual, ev.jacobian
     if phi_vol is None:
         phi_vol = float(ev.phi_vol)
     k = len(fitted)
     n_solves = 1
-    # effects that saturate far from their null (a bonded punch, a sliding bottom) also by the
-    # secant to their full size: one solve each, its residual's change a column like the others
-    # and effects far from linear in their amplitude (Darcy flow) by secants at a scan of it
     secants = []
-    for e in cands:
-        for a in e.secant_points():
-            # the full size, where its solve fails nearly full (`Effect.far_fallback`)
-            tries = [a, *e.far_fallback] if a == e.far else [a]
-            for n, a_try in enumerate(tries, 1):
-                far = objective.evaluate_model(dict(params), e.secant_model(model, full, a_try, fm))
-                n_solves += 1
-                if far.ok:
-                    break
-                log.warning("the %s model at %s = %g %s did not solve (%s): %s", e.name, e.amplitude, a_try, e.unit,
-                            far.message[:200], f"trying {tries[n]:g}" if n < len(tries) else "not tested there")
-            if not far.ok:
-                continue
-            J = np.column_stack([J, far.residual - r])
-            cols.append((e, {SECANT: a_try, FULL: a == e.far}))
-            if e not in secants:
-                secants.append(e)
+    for (e, a), (far, a_try, n) in zip(jobs, solved):
+        n_solves += n
+        if not far.ok:
+            continue
+        J = np.column_stack([J, far.residual - r])
+        cols.append((e, {SECANT: a_try, FULL: a == e.far}))
+        if e not in secants:
+            secants.append(e)
     Z = _orthogonal(J[:, :k], J[:, k:])
     groups = objective.residual_groups()
     s = Z.T @ r
@@ -201,6 +205,20 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float | 
                              f"{e.amplitude} = {a:g} {e.unit}" for a in e.secant_points())
                          + f" ({len(e.secant_points())} solve{'s' if len(e.secant_points()) > 1 else ''}); "
                          for e in secants) + "p-values Bonferroni over each effect's scan")
+
+
+def _secant_solve(objective, params, model, full, fm, e, a):
+    """The fitted law's solve with the effect `e` at amplitude `a` (`Effect.secant_model`), or
+    at its fallbacks where the full size does not solve (`Effect.far_fallback`): (evaluation,
+    the amplitude solved, solves made)."""
+    tries = [a, *e.far_fallback] if a == e.far else [a]
+    for n, a_try in enumerate(tries, 1):
+        far = objective.evaluate_model(dict(params), e.secant_model(model, full, a_try, fm))
+        if far.ok:
+            break
+        log.warning("the %s model at %s = %g %s did not solve (%s): %s", e.name, e.amplitude, a_try, e.unit,
+                    far.message[:200], f"trying {tries[n]:g}" if n < len(tries) else "not tested there")
+    return far, a_try, n
 
 
 def passes(row, alpha=ALPHA, min_drop=MIN_DROP) -> bool:
