@@ -109,8 +109,9 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float | 
     # and effects far from linear in their amplitude (Darcy flow) by secants at a scan of it.
     # They are solved in a second thread while this one makes the sensitivity step (the sparse
     # factorizations and most array work release the GIL), with one thread each in MKL and
-    # OpenBLAS: PARDISO's two threads in each solve made the pair no faster than one after the
-    # other (the warped neo-Hookean null of seed 15: 9.6 s, 9.0 s overlapped, 6.7 s so)
+    # OpenBLAS: PARDISO's two threads in each solve made the pair hardly faster than one after
+    # the other (the warped neo-Hookean null of seed 15: 9.4-9.6 s one after the other, 9.0 s
+    # overlapped, 8.0-8.3 s so)
     jobs = [(e, a) for e in cands for a in e.secant_points()]
     with threadpool_limits(limits=1 if jobs else None), \
             ThreadPoolExecutor(max_workers=1, thread_name_prefix="secant") as pool:
