@@ -397,7 +397,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
 #: the medium mesh's corrected motion its contrast was 1.043, SD 0.030: 1.4 SD. A true effect's
 #: in the recorded warped discoveries: Darcy flow 17-102 SD, bulk relaxation 48, strain
 #: stiffening 83-135, shear relaxation 288, the held-out 3x sphere of seed 15 5.0. 3, not 2:
-#: these SDs do not cover the truth on warped volumes (README).
+#: these SDs do not cover the truth on warped volumes (docs/diagnosis.md).
 Z_WITHDRAW = 3.0
 
 

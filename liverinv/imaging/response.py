@@ -28,7 +28,7 @@ decorrelation draws are not known for measured data and must not be used here), 
 moved with the model's motion. Its error holds the tracker's systematic part and, on top, a
 realization's random part, as large as the data's own: on PSR data (seed 7) two response seeds
 correlated 0.05-0.15 per component and no refit on the corrected motion came closer to the
-truth (README, Identification), so `discover` corrects warped volumes only.
+truth (docs/identification.md), so `discover` corrects warped volumes only.
 """
 
 from __future__ import annotations
