@@ -80,7 +80,16 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          # bottom; strain stiffening with shear relaxation behind a neo-Hookean base
          "sr_nlbulk": ("SBR", dict(SR, D2=3e-4, k1=0.0, tau_k1=1.0), {}, "SR"),
          "bulk_slip": ("BR", dict(E, D2=1000.0, k1=0.5, tau_k1=0.3), {"contact": {"support": "sliding"}}, "elastic"),
-         "stiffening_shear": ("SR", SR, {"loading": SHALLOW}, "NH")}
+         "stiffening_shear": ("SR", SR, {"loading": SHALLOW}, "NH"),
+         # session 26, held out: an 8x stiffer 4.5 mm sphere on the axis 9 mm deep behind SR; slow
+         # shear relaxation (g1 0.3, tau_g1 1.5 s); bulk relaxation with partial punch friction;
+         # the quartic bulk term with a sliding bottom; slow Darcy flow (kappa 2e-9, off the
+         # secant grid)
+         "sr_inclusion": ("SR", SR, inclusion(8.0, 0.0045, (0.0, 0.0, 0.021)), "SR"),
+         "slow_shear": ("SR", dict(E, g1=0.3, tau_g1=1.5), {}, "elastic"),
+         "bulk_friction": ("BR+punch_friction", dict(E, D2=1000.0, k1=0.5, tau_k1=0.3, k_punch=1e7), {}, "elastic"),
+         "nlbulk_slip": ("elastic_D2", dict(E, D2=3e-4), {"contact": {"support": "sliding"}}, "elastic"),
+         "poro_k2e-9": ("PE", dict(E, kappa=2e-9), {}, "elastic")}
 
 
 def mesh_file(name, out):
