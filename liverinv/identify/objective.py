@@ -328,15 +328,17 @@ class Objective:
             return Evaluation(dict(params), False, np.nan, np.nan, np.nan, message=str(e))
         return self.evaluate_model(params, model, variants, eps)
 
-    def evaluate_model(self, params: dict, model, variants=None, eps=None) -> Evaluation:
+    def evaluate_model(self, params: dict, model, variants=None, eps=None, options=None) -> Evaluation:
         """Phi and the residuals of a built forward `model` (any parameter set, e.g. an
         extended law at its null values), with the residual's derivatives along the
-        `variants` (the same model with parameters moved by `eps`) when given."""
+        `variants` (the same model with parameters moved by `eps`) when given; `options`: Newton
+        options other than the objective's own (e.g. a looser tolerance)."""
         t_start = _time.perf_counter()
         d = self.data
         try:
             sens = Sensitivity(variants, eps) if variants is not None else None
-            h = solve_history(model, self.t_drive, self.f_drive, self.control, self.options, sensitivity=sens)
+            h = solve_history(model, self.t_drive, self.f_drive, self.control, options or self.options,
+                              sensitivity=sens)
         except (ConvergenceError, FloatingPointError, ValueError) as e:
             return Evaluation(dict(params), False, np.nan, np.nan, np.nan,
                               wall_s=_time.perf_counter() - t_start, message=str(e))
