@@ -754,3 +754,28 @@ def test_the_corrected_fit_takes_the_finer_mesh_unless_a_coarser_one_fits_clearl
     assert label == "tracking mesh" and tests["tracking mesh"]["z"] > 2.33
     other = {"tracking mesh": cand((e + 0.1 * a)[:-40], g[:-40]), "final mesh": cand(e + 0.1 * b)}
     assert corrected_mesh_choice(other) == ("tracking mesh", {})
+
+
+def test_the_secant_solves_loose_tolerance_keeps_the_residuals_change(tiny):
+    """The secants are solved at SECANT_RTOL (1e-4, the objective's own is 1e-6): the change of
+    the residual from the fit's, the column the score uses, stays within 2e-3 of the tight
+    solve's, for the bonded punch and the sliding bottom behind an elastic fit."""
+    from liverinv.diagnose.score import SECANT_RTOL
+    from dataclasses import replace
+    fm = tiny
+    run = ForwardModel(fm.mesh, punch="bonded").run("elastic", E, ramp_history(4e-3, 2e-3, frames=13, unload=True))
+    obj = Objective(fm, "elastic", noisy_measurements(run, 0), noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
+    model = fm.model("elastic", E, compliant_bottom=True)
+    full = fm.element_params("elastic", E)
+    r = obj.evaluate_model(dict(E), model).residual
+    loose = replace(obj.options, rtol=SECANT_RTOL)
+    assert SECANT_RTOL == 1e-4 and obj.options.rtol == 1e-6
+    for name in ("punch_friction", "bottom_slip"):
+        e = CATALOG[name]
+        secant = e.secant_model(model, full, e.far, fm)
+        tight = obj.evaluate_model(dict(E), secant)
+        fast = obj.evaluate_model(dict(E), secant, options=loose)
+        change = tight.residual - r
+        assert np.linalg.norm(change) > 0.05 * np.linalg.norm(r)        # the effect is there
+        assert np.linalg.norm(fast.residual - tight.residual) <= 2e-3 * np.linalg.norm(change)
+        assert fast.iterations < tight.iterations
