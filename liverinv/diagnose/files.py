@@ -209,6 +209,7 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
         said = [w for w in final.get("warnings", []) if not (corrected.get("params") and "explains the data worse" in w)]
         steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + said
         attrs = dict(attrs, final_kept=int(bool(final.get("params")) and final.get("kept", True)),
+                     final_mesh_test=json.dumps(final.get("mesh_test", {})),
                      final_params=json.dumps(final.get("params", {})),
                      final_phi=float(final["phi"]), final_phi_vol=float(final["phi_vol"]),
                      final_phi_ind=float(final["phi_ind"]), final_n_solves=int(final["n_solves"]),
