@@ -517,7 +517,7 @@ def corrected_mesh_choice(common) -> tuple[str, dict]:
     """The candidate mesh whose corrected fit a discovery reports, from `common` (label ->
     (best evaluation at the discovery's levels, ..., residual groups), the finest mesh last),
     and the paired test that chose it. The finest mesh is taken unless a coarser one fits
-    clearly better (`compare.paired_misfit_test`, z > `MESH_WORSE_Z`): its discretization error is
+    better (`compare.paired_misfit_test`, z > `MESH_WORSE_Z`): its discretization error is
     the smallest, and a lower Phi by less than the tracking error's own scatter says nothing.
     (Warped bulk relaxation with B-mode noise 0.05, seed 18: the coarse mesh's Phi was lower by
     0.14 % and its corrected fit had C2 -15 %, tau_k1 -26 %; the medium mesh's had C2 -3 %,

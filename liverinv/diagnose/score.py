@@ -71,7 +71,8 @@ STRONG_DROP = 0.05
 EPS = 1e-6          # step of the sensitivity directions
 #: Newton tolerance of the secant solves (the objective's own is 1e-6): their residual's change
 #: from the fit's is then within 2e-4 to 1.1e-3 of the tight solve's and its predicted drop within
-#: 0.15 %, in 35-43 % fewer iterations (the four secants of a warped elastic null, seed 19)
+#: 0.15 %, in 32-50 % fewer iterations (the four secants of the warped elastic null of seed 19
+#: and of the warped neo-Hookean null of seed 15)
 SECANT_RTOL = 1e-4
 
 
@@ -116,8 +117,8 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float | 
     # factorizations and most array work release the GIL), with one thread each in MKL and
     # OpenBLAS: PARDISO's two threads in each solve made the pair hardly faster than one after
     # the other (the warped neo-Hookean null of seed 15: 9.4-9.6 s one after the other, 9.0 s
-    # overlapped, 8.0-8.3 s so). The secants take longer than the sensitivity step, so this
-    # thread then solves those the second has not started.
+    # overlapped, 8.0-8.3 s so). Where the secants take longer than the sensitivity step (on a
+    # busy machine), this thread then solves those the second has not started.
     jobs = [(e, a) for e in cands for a in e.secant_points()]
     with threadpool_limits(limits=1 if jobs else None), \
             ThreadPoolExecutor(max_workers=1, thread_name_prefix="secant") as pool:
