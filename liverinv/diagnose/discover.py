@@ -523,22 +523,32 @@ def corrected_mesh_choice(common) -> tuple[str, dict]:
     0.14 % and its corrected fit had C2 -15 %, tau_k1 -26 %; the medium mesh's had C2 -3 %,
     tau_k1 -19 %. On the 13 recorded warped discoveries without B-mode noise the finer mesh's
     Phi was the lower, by 0.7-65 %.)"""
-    from ..identify.compare import group_misfit, paired_misfit_test
-
     labels = list(common)
     finest = labels[-1]
     best_finest, *_, g_finest = common[finest]
     tests = {}
     for label in labels[:-1]:
         best, *_, g = common[label]
-        if not np.array_equal(g, g_finest) or np.shape(best["residual"]) != np.shape(best_finest["residual"]):
+        t = coarser_mesh_test(best_finest["residual"], best["residual"], g_finest, g)
+        if t is None:
             continue         # not the same rows: the lower Phi decides
-        n = int(g.max()) + 1
-        t = paired_misfit_test(group_misfit(best_finest["residual"], g, n), group_misfit(best["residual"], g, n))
         tests[label] = dict(z=t["z"], p=t["p_worse"], finer=finest)
         if t["z"] <= MESH_WORSE_Z:
             common = {k: v for k, v in common.items() if k != label}
     return min(common, key=lambda k: common[k][0]["phi"]), tests
+
+
+def coarser_mesh_test(r_finer, r_coarser, g_finer, g_coarser) -> dict | None:
+    """The paired test (`identify.compare`, per-cluster misfits) that the finer mesh's fit, with
+    residual `r_finer`, explains the data worse than the coarser mesh's: its z is large when the
+    coarser fits better. None when the two residuals do not have the same rows and clusters."""
+    from ..identify.compare import group_misfit, paired_misfit_test
+
+    if r_finer is None or r_coarser is None or g_finer is None or g_coarser is None \
+            or np.shape(r_finer) != np.shape(r_coarser) or not np.array_equal(g_finer, g_coarser):
+        return None
+    n = int(g_finer.max()) + 1
+    return paired_misfit_test(group_misfit(r_finer, g_finer, n), group_misfit(r_coarser, g_finer, n))
 
 
 def final_mesh_test(step, groups, final) -> dict:
@@ -552,14 +562,9 @@ def final_mesh_test(step, groups, final) -> dict:
     discretization error (moved scatterers, slow shear relaxation behind elastic, seed 20: Phi
     0.19 % higher on the medium mesh, z 0.78, whose C1 and C2 were +4.5 and -3 % against +10 and
     -15 %)."""
-    from ..identify.compare import group_misfit, paired_misfit_test
-
-    r_track, r_final, g = step.get("residual"), final.get("residual"), final.get("groups")
-    if r_track is None or r_final is None or g is None or np.shape(r_track) != np.shape(r_final) \
-            or not np.array_equal(g, groups):
+    t = coarser_mesh_test(final.get("residual"), step.get("residual"), final.get("groups"), groups)
+    if t is None:
         return dict(kept=bool(final["phi"] <= step["phi"]), z=float("nan"), rule="lower Phi (rows differ)")
-    n = int(g.max()) + 1
-    t = paired_misfit_test(group_misfit(r_final, g, n), group_misfit(r_track, g, n))
     return dict(kept=bool(t["z"] <= MESH_WORSE_Z), z=float(t["z"]), p=float(t["p_worse"]), rule="paired test")
 
 
