@@ -89,7 +89,15 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "slow_shear": ("SR", dict(E, g1=0.3, tau_g1=1.5), {}, "elastic"),
          "bulk_friction": ("BR+punch_friction", dict(E, D2=1000.0, k1=0.5, tau_k1=0.3, k_punch=1e7), {}, "elastic"),
          "nlbulk_slip": ("elastic_D2", dict(E, D2=3e-4), {"contact": {"support": "sliding"}}, "elastic"),
-         "poro_k2e-9": ("PE", dict(E, kappa=2e-9), {}, "elastic")}
+         "poro_k2e-9": ("PE", dict(E, kappa=2e-9), {}, "elastic"),
+         # session 27, held out: fast shear relaxation (tau_g1 0.1 s); weak, slow bulk relaxation;
+         # a 3x softer 5 mm sphere 6.3 mm off the axis (outside the scan's grid) 9 mm deep; partial
+         # punch friction behind SR; shear relaxation with a sliding bottom behind elastic
+         "fast_shear": ("SR", dict(E, g1=0.3, tau_g1=0.1), {}, "elastic"),
+         "weak_bulk": ("BR", dict(E, D2=1000.0, k1=0.3, tau_k1=1.0), {}, "elastic"),
+         "soft_inclusion_off": ("elastic", E, inclusion(1 / 3, 0.005, (0.006, -0.002, 0.021)), "elastic"),
+         "sr_friction_k3e6": ("SR+punch_friction", dict(SR, k_punch=3e6), {}, "SR"),
+         "shear_slip": ("SR", SR, {"contact": {"support": "sliding"}}, "elastic")}
 
 
 def mesh_file(name, out):
