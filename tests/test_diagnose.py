@@ -241,6 +241,11 @@ def test_final_fit_on_the_same_mesh_stays_at_the_optimum_and_fills_the_last_step
     assert json.loads(str(ds.params.values[-1])) == pytest.approx(final["params"])
     assert json.loads(str(ds.params_tracking_mesh.values[-1])) == pytest.approx(step["params"])
     assert json.loads(str(ds.param_sd.values[-1])) == pytest.approx(final["sd"])
+    # one other fit of the law (the tracking mesh's): its spread is the difference from it
+    model, total = json.loads(str(ds.param_sd_model.values[-1])), json.loads(str(ds.param_sd_total.values[-1]))
+    for k in ("C1", "C2", "D1"):
+        assert model[k] == pytest.approx(abs(final["params"][k] - step["params"][k]), rel=1e-9)
+        assert total[k] == pytest.approx(np.hypot(final["sd"][k], model[k]), rel=1e-9)
     assert ds.attrs["final_phi"] == pytest.approx(step["phi"], rel=1e-3)
 
     assert ds.attrs["final_kept"] == 1
@@ -808,3 +813,14 @@ def test_the_final_fit_is_kept_unless_the_tracking_mesh_fits_better():
     other = dict(final(1.002), residual=other_model[:-5], groups=g[:-5])
     assert not final_mesh_test(step, g, other)["kept"]
     assert final_mesh_test(step, g, dict(other, phi=0.99 * step["phi"]))["kept"]
+
+
+def test_the_model_form_spread_is_the_rms_difference_of_the_other_fits():
+    from liverinv.diagnose.files import model_form_sd
+    reported, sd = dict(C1=200.0, C2=5000.0, D1=1.5e-3, inclusion_center_m=[0.0, 0.0, 0.02]), dict(C1=2.0, C2=40.0, D1=1e-5)
+    coarse, uncorrected = dict(C1=206.0, C2=4400.0, D1=1.5e-3), dict(C1=192.0, C2=5000.0, D1=1.6e-3)
+    m = model_form_sd(reported, sd, [coarse, uncorrected, {}, dict(reported)])   # {} and a copy: no alternative
+    assert m["C1"] == pytest.approx(np.sqrt((36.0 + 64.0) / 2))
+    assert m["C2"] == pytest.approx(np.sqrt(600.0 ** 2 / 2))
+    assert m["D1"] == pytest.approx(np.sqrt(1e-8 / 2))
+    assert model_form_sd(reported, sd, [dict(reported), {}]) == dict(C1=0.0, C2=0.0, D1=0.0)

@@ -153,7 +153,12 @@ def run(args) -> int:
               f"there), in {response['n_solves']} solves ({response['wall_s']:.0f} s); the reported parameters:")
     if final_mesh or response.get("mesh"):
         value, sd = json.loads(str(ds.params.values[-1])), json.loads(str(ds.param_sd.values[-1]))
+        model = json.loads(str(ds.param_sd_model.values[-1]))
         print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
+        if model:
+            print("    the spread of the other fits of this law (model mesh, tracker correction) about it: "
+                  + ", ".join(f"{k} {v:.2g}" for k, v in model.items()) + " (param_sd_model; param_sd_total "
+                  "combines both)")
     if ds.attrs["caveat"]:
         print(f"warning: {ds.attrs['caveat']}", file=sys.stderr)
     print(f"wrote {args.out}: {ds.attrs['stopped_because']}")

@@ -179,6 +179,21 @@ def diagnosis_dataset(d: dict, **attrs) -> xr.Dataset:
     return ds
 
 
+def model_form_sd(reported: dict, sd: dict, alternatives) -> dict:
+    """The spread of the same law's other fits about the reported one, per fitted parameter
+    (the names of `sd`): the RMS of (alternative - reported) over the `alternatives` that
+    differ from it (the fit on the other model mesh, the fit before the tracker's correction).
+    The statistical SD sees the data's noise only; the choice of model mesh and of the
+    tracker's correction moves a fit by more (the coarse benchmark mesh's C2 by about 10 %), and
+    the truth lies between the alternatives more often than within 2 statistical SD of one."""
+    alts = [a for a in alternatives if a and any(isinstance(a.get(k), float) and a[k] != reported.get(k) for k in sd)]
+    out = {}
+    for k in sd:
+        d = [float(a[k]) - float(reported[k]) for a in alts if isinstance(a.get(k), float) and k in reported]
+        out[k] = float(np.sqrt(np.mean(np.square(d)))) if d else 0.0
+    return out
+
+
 def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
     """The DISCOVERY.nc of `discover`'s result. With a final fit on a finer model mesh that
     explains the data at least as well (attribute `final_kept`), the last step's `params` and
@@ -197,6 +212,13 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
     corrected = out.get("corrected") or {}
     if corrected.get("params"):
         steps[-1].update(params=corrected["params"], sd=corrected["sd"])
+    # the last step's other fits of the same law: on the tracking mesh, on the finer mesh
+    # before the tracker's correction
+    model_sd = [{} for _ in steps]
+    if final.get("params") or corrected.get("params"):
+        model_sd[-1] = model_form_sd(steps[-1]["params"], steps[-1].get("sd", {}),
+                                     [tracking[-1], final.get("params") or {}])
+    total_sd = [{k: float(np.hypot(v, m.get(k, 0.0))) for k, v in s.get("sd", {}).items()} for s, m in zip(steps, model_sd)]
     if corrected:
         steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + list(corrected.get("warnings", []))
         attrs = dict(attrs, tracker_response=json.dumps(
@@ -249,6 +271,13 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
             param_sd=("step", [json.dumps(s.get("sd", {})) for s in steps],
                       {"long_name": "standard deviation of each fitted parameter at this step (JSON, SI; "
                                     "Gauss-Newton, cluster-robust, from the step's diagnosis solve)"}),
+            param_sd_model=("step", [json.dumps(m) for m in model_sd],
+                            {"long_name": "the spread of the last step's other fits of the same law about its "
+                                          "reported one (JSON, SI; RMS of their differences: the fit on the other "
+                                          "model mesh, the fit before the tracker's correction), the uncertainty "
+                                          "of those choices (empty where no other fit ran)"}),
+            param_sd_total=("step", [json.dumps(t) for t in total_sd],
+                            {"long_name": "sqrt(param_sd^2 + param_sd_model^2) (JSON, SI)"}),
             warnings=("step", ["\n".join(s.get("warnings", [])) for s in steps],
                       {"long_name": "what to know before trusting this step's fit: parameters at a bound, "
                                     "parameters the data do not determine (relative SD over 10 %)"}),
