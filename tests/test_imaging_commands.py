@@ -307,6 +307,35 @@ def test_tracker_response_to_the_true_motion_is_the_tracked_data(tmp_path, synth
     assert np.abs(r - tracked).max() < 3e-3 * np.abs(tracked).max()
 
 
+def test_tracker_response_to_noisy_warped_volumes_is_the_noise_free_one_times_the_noise_gain(tmp_path):
+    """Warped volumes with B-mode noise: the response is the noise-free response (the first
+    volume warped, tracked) scaled per component by the slope of a noisy response on it, held in
+    `NOISE_GAIN_RANGE` (noise only shrinks the tracked motion); `bmode_noise=0` gives the
+    noise-free response."""
+    from liverinv.imaging.response import NOISE_GAIN_RANGE, tracker_response
+    from liverinv.mesh import TetMesh, read_mesh
+
+    study, bundle, truth, flow = tmp_path / "s.yaml", tmp_path / "b.h5", tmp_path / "t.nc", tmp_path / "f.nc"
+    study.write_text(STUDY.replace("  seed: 2\n", "  seed: 2\n  bmode_noise: 0.05\n").replace("frame_rate_hz: 26", "frame_rate_hz: 4"))
+    for argv in (["synthesize", str(study), "--out", str(bundle), "--truth-out", str(truth)],
+                 ["track", str(bundle), "--mesh", str(MESH), "--out", str(flow)]):
+        a = _parser().parse_args(argv)
+        assert a.func(a) == 0
+    f, t = xr.load_dataset(flow), xr.load_dataset(truth)
+    with open_bundle(bundle) as b:
+        assert json.loads(b.attrs["imaging"])["bmode_noise"] == 0.05
+        u = t.u.interp(time=b.time_s).values
+        mesh, truth_mesh = read_mesh(MESH, required=()), TetMesh(t.X.values, t.cells.values)
+        clean = tracker_response(b, f, mesh, truth_mesh, u, bmode_noise=0.0)
+        scaled = tracker_response(b, f, mesh, truth_mesh, u)
+    assert np.abs(clean).max() > 1e-4
+    gain = [np.sum(clean[..., c] * scaled[..., c]) / np.sum(clean[..., c] ** 2) for c in range(3)]
+    for c in range(3):
+        assert NOISE_GAIN_RANGE[0] <= gain[c] <= NOISE_GAIN_RANGE[1]
+        np.testing.assert_allclose(scaled[..., c], gain[c] * clean[..., c], rtol=0, atol=1e-12 * np.abs(clean).max())
+    assert min(gain) < 1.0
+
+
 def test_tracker_response_on_moved_scatterers_renders_the_data_again(tmp_path, synthesized):
     """Moved-scatterer data: the response to the truth's motion rendered with the data's own
     speckle seed is the data's tracked flow (the same scatterers, decorrelation and receiver
