@@ -84,7 +84,10 @@ def tracker_response(bundle, flow, tracking_mesh, model_mesh, u_frames: np.ndarr
     t0 = time.perf_counter()
     model_vw = VoxelWeights.build(model_mesh.points, model_mesh.cells, grid)
     imaging = bundle_imaging(bundle)
-    if imaging.get("mode") == "scatter":
+    warped = imaging.get("mode") != "scatter"
+    # the warped volumes' B-mode noise (moved scatterers carry theirs in the rendering)
+    noise = float((imaging.get("bmode_noise") or 0.0) if bmode_noise is None else bmode_noise) if warped else 0.0
+    if not warped:
         from .synth import imaging_options
         if seed is None:
             seed = int(imaging.get("seed", 0)) + RESPONSE_SEED
@@ -95,7 +98,6 @@ def tracker_response(bundle, flow, tracking_mesh, model_mesh, u_frames: np.ndarr
     else:
         ref = np.asarray(bundle.frame(0), np.float32)
         coef = ndimage.spline_filter(ref, order=3, output=np.float32, mode="mirror")
-        noise = float((imaging.get("bmode_noise") or 0.0) if bmode_noise is None else bmode_noise)
         noise_seed = int(imaging.get("seed", 0)) + RESPONSE_SEED if seed is None else int(seed)
 
         def volume(k, u_nodes, noisy=False):
@@ -118,8 +120,8 @@ def tracker_response(bundle, flow, tracking_mesh, model_mesh, u_frames: np.ndarr
         return out, conf
 
     # warped volumes are independent of each other; moved scatterers draw noise in order
-    out, conf = tracked(volume, stateless=imaging.get("mode") != "scatter")
-    if imaging.get("mode") != "scatter" and noise > 0:
+    out, conf = tracked(volume, stateless=warped)
+    if noise > 0:
         # B-mode noise that does not move with the tissue pulls the tracked motion toward zero
         # (3-4 % laterally at 0.05 on the hidden-effect cases); its realization would add as much
         # random error again. So the noise-free response is scaled, per component, by the gain of
