@@ -87,46 +87,48 @@ def tracker_response(bundle, flow, tracking_mesh, model_mesh, u_frames: np.ndarr
     warped = imaging.get("mode") != "scatter"
     # the warped volumes' B-mode noise (moved scatterers carry theirs in the rendering)
     noise = float((imaging.get("bmode_noise") or 0.0) if bmode_noise is None else bmode_noise) if warped else 0.0
+    noise_seed = int(imaging.get("seed", 0)) + RESPONSE_SEED if seed is None else int(seed)
     if not warped:
         from .synth import imaging_options
         if seed is None:
             seed = int(imaging.get("seed", 0)) + RESPONSE_SEED
         scene = SpeckleScene(model_vw, imaging_options(imaging, "the bundle's imaging attribute", seed=seed))
 
-        def volume(k, u_nodes):
+        def volume(u_nodes):
             return scene.frame(u_nodes)
     else:
         ref = np.asarray(bundle.frame(0), np.float32)
         coef = ndimage.spline_filter(ref, order=3, output=np.float32, mode="mirror")
-        noise_seed = int(imaging.get("seed", 0)) + RESPONSE_SEED if seed is None else int(seed)
 
-        def volume(k, u_nodes, noisy=False):
-            out = warp_volume(ref, model_vw.to_grid(grid.vec_to_vox(u_nodes)), coef)
-            if noisy and k > 0:     # the data's B-mode noise, drawn afresh for every frame after the first
-                rng = np.random.default_rng([noise_seed, k])
-                out = np.clip(out + noise * rng.standard_normal(out.shape), 0.0, 1.0).astype(np.float32)
-            return out
+        def volume(u_nodes):
+            return warp_volume(ref, model_vw.to_grid(grid.vec_to_vox(u_nodes)), coef)
+
+    def with_noise(k, vol):     # the data's B-mode noise, drawn afresh for every frame after the first
+        rng = np.random.default_rng([noise_seed, k])
+        return np.clip(vol + noise * rng.standard_normal(vol.shape), 0.0, 1.0).astype(np.float32)
+
     track_vw = VoxelWeights.build(tracking_mesh.points, tracking_mesh.cells, grid, stride=stride, window=window)
-
-    def tracked(render, stateless):
-        tracker = NodalTracker(track_vw, tracking_mesh.points, opts)
-        out = np.zeros((u_frames.shape[0] - 1, tracking_mesh.n_nodes, 3))
-        conf = np.zeros(out.shape[:2])
-        volumes = rendered_ahead(lambda item: render(*item), enumerate(u_frames), stateless=stateless)
-        tracker.start(next(volumes))
-        for k, vol in enumerate(volumes, start=1):
-            v, c = tracker.step(vol)
-            out[k - 1], conf[k - 1] = grid.vec_to_m(v), np.mean(c, axis=-1)
-        return out, conf
-
+    # the noise-free sequence and, with B-mode noise, the same volumes with the noise added,
+    # tracked side by side (each volume warped once)
+    trackers = [NodalTracker(track_vw, tracking_mesh.points, opts) for _ in range(2 if noise > 0 else 1)]
+    out = np.zeros((len(trackers), u_frames.shape[0] - 1, tracking_mesh.n_nodes, 3))
+    conf = np.zeros(out.shape[1:3])
     # warped volumes are independent of each other; moved scatterers draw noise in order
-    out, conf = tracked(volume, stateless=warped)
+    volumes = rendered_ahead(volume, u_frames, stateless=warped)
+    first = next(volumes)
+    for tracker in trackers:
+        tracker.start(first)
+    for k, vol in enumerate(volumes, start=1):
+        v, c = trackers[0].step(vol)
+        out[0, k - 1], conf[k - 1] = grid.vec_to_m(v), np.mean(c, axis=-1)
+        if noise > 0:
+            out[1, k - 1] = grid.vec_to_m(trackers[1].step(with_noise(k, vol))[0])
+    out, noisy = out[0], out[-1]
     if noise > 0:
         # B-mode noise that does not move with the tissue pulls the tracked motion toward zero
         # (3-4 % laterally at 0.05 on the hidden-effect cases); its realization would add as much
         # random error again. So the noise-free response is scaled, per component, by the gain of
         # a noisy one against it (confidence-weighted least-squares slope).
-        noisy, _ = tracked(lambda k, u: volume(k, u, noisy=True), stateless=True)
         w = conf[..., None]
         slope = np.sum(w * out * noisy, axis=(0, 1)) / np.maximum(np.sum(w * out * out, axis=(0, 1)), 1e-300)
         # noise only shrinks the estimate; a slope outside NOISE_GAIN_RANGE is the realization's
