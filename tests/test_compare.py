@@ -79,9 +79,16 @@ def test_the_ranking_tests_each_law_against_the_first_and_names_where_it_is_wors
     worse_ind = base + np.where(field, 0.0, 0.6 * PER)                          # the force record only
     noise_only = group_misfit(e + 0.05 * rng.standard_normal(e.size), labels, G)
     noise_only[0] = base[0] + 30.0                                              # a tiny deficit, by chance
-    rk = ranking(_fits({"A": base, "B": worse_ind, "C": noise_only}, field))
+    # D buys a Phi_vol 0.3 % below A's with a force record 50 % worse (BR against SR on the
+    # Table 3 surrogate): it ranks below A by Phi, the likelihood, and first by Phi_vol
+    trade = base * np.where(field, 0.997, 1.5)
+    rk = ranking(_fits({"A": base, "B": worse_ind, "C": noise_only, "D": trade}, field))
     assert rk.law.iloc[0] == "A"                 # B ties A on Phi_vol: the order of the study stays
     row = rk.set_index("law")
+    assert list(rk.law) == list(rk.sort_values("phi").law) and row.loc["D", "rank"] > row.loc["A", "rank"]
+    assert row.loc["D", "phi_vol_rank"] == 1 and row.loc["A", "phi_vol_rank"] == 2
+    assert np.isclose(row.loc["D", "phi_vol_vs_best"], 1.0) and row.loc["D", "phi_vs_best"] > 1.0
+    assert row.loc["D", "z_ind"] > WORSE_Z and row.loc["D", "z_vol"] < 0
     assert row.loc["B", "z_ind"] > WORSE_Z and row.loc["B", "clearly_worse"] == "Phi_ind, Phi"
     assert abs(row.loc["B", "z_vol"]) < 1e-12                                   # the same field misfit
     assert row.loc["C", "z_vol"] < WORSE_Z and row.loc["C", "clearly_worse"] == "no"
