@@ -8,6 +8,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import xarray as xr
 
@@ -165,6 +166,8 @@ def test_reduced_quick_study_end_to_end(tmp_path):
     assert json.loads(ds.attrs["fit_files"]) and len(ds.attrs["study_sha256"]) == 64
     md = (res / "mini/table.md").read_text()
     assert "## elastic" in md and "(140)" in md
+    rk = pd.read_csv(res / "mini/ranking.csv")            # one law: its row says there is nothing to rank
+    assert list(rk.law) == ["elastic"] and "nothing to rank" in rk.note[0]
     for f in ("figures/convergence_elastic.png", "figures/indenter.png", "figures/velocities.png"):
         assert (res / "mini" / f).stat().st_size > 20_000, f
     import meshio

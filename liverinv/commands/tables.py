@@ -1,4 +1,5 @@
-"""`liverinv tables`: a study's gathered fits (fits.nc) as table.csv and table.md."""
+"""`liverinv tables`: a study's gathered fits (fits.nc) as table.csv and table.md, and the
+ranking of its laws (`--ranking-csv`)."""
 
 from __future__ import annotations
 
@@ -11,17 +12,28 @@ def register(sub):
     p.add_argument("fits", type=Path, help="gathered fits (liverinv gather)")
     p.add_argument("--csv", type=Path, required=True)
     p.add_argument("--md", type=Path, required=True)
+    p.add_argument("--ranking-csv", type=Path, help="the laws ranked by Phi at the common noise levels, with "
+                                                    "the paired test against the first (one row when the study "
+                                                    "fits one law)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..fileio import atomic_path
-    from ..pipeline.tables import fit_table, markdown_table
+    from ..pipeline.tables import fit_table, markdown_table, ranking
     from ..pipeline.gather import load_dataset
 
     ds = load_dataset(args.fits)
     with atomic_path(args.csv) as tmp:
         fit_table(ds).to_csv(tmp, index=False)
+    if args.ranking_csv:
+        rk = ranking(ds)
+        if rk is None:      # one law: nothing to rank, its row says so
+            import pandas as pd
+            rk = pd.DataFrame(dict(law=[str(v) for v in ds.law.values], rank=1,
+                                   note="the study fits one law: nothing to rank"))
+        with atomic_path(args.ranking_csv) as tmp:
+            rk.to_csv(tmp, index=False)
     md = markdown_table(ds)
     with atomic_path(args.md) as tmp:
         tmp.write_text(md)

@@ -160,7 +160,7 @@ def study_outputs(study):
     out = []
     if s.laws:
         out += [f"{RESULTS}/{study}/fits.nc", f"{RESULTS}/{study}/table.csv", f"{RESULTS}/{study}/table.md",
-                *figure_files(study)]
+                f"{RESULTS}/{study}/ranking.csv", *figure_files(study)]
     if s.discover:
         out += [f"{RESULTS}/{study}/discovery.nc", f"{RESULTS}/{study}/figures/discovery.png"]
     return out

@@ -53,6 +53,7 @@ rule tables:
     output:
         csv=report(f"{RESULTS}/{{study}}/table.csv", caption="../report/table.rst", category="tables"),
         md=f"{RESULTS}/{{study}}/table.md",
+        ranking=report(f"{RESULTS}/{{study}}/ranking.csv", caption="../report/ranking.rst", category="tables"),
     log:
         f"{RESULTS}/logs/{{study}}/tables.log",
     benchmark:
@@ -64,7 +65,7 @@ rule tables:
         mem_mb=1000,
         runtime=10,
     shell:
-        "liverinv tables {input} --csv {output.csv} --md {output.md} > {log} 2>&1"
+        "liverinv tables {input} --csv {output.csv} --md {output.md} --ranking-csv {output.ranking} > {log} 2>&1"
 
 
 rule convergence:
