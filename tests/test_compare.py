@@ -93,3 +93,16 @@ def test_the_ranking_tests_each_law_against_the_first_and_names_where_it_is_wors
     assert abs(row.loc["B", "z_vol"]) < 1e-12                                   # the same field misfit
     assert row.loc["C", "z_vol"] < WORSE_Z and row.loc["C", "clearly_worse"] == "no"
     assert row.loc["A", "clearly_worse"] == "-" and np.isnan(row.loc["A", "z"])
+
+
+def test_the_ranking_table_of_one_law_says_there_is_nothing_to_rank():
+    from liverinv.pipeline.tables import ranking_table
+    rng = np.random.default_rng(5)
+    labels, e = _data(rng)
+    field = np.arange(G) < 60
+    ds = _fits({"A": group_misfit(e, labels, G)}, field)
+    assert ranking(ds) is None
+    rk = ranking_table(ds)
+    assert list(rk.law) == ["A"] and rk["rank"].tolist() == [1] and "nothing to rank" in rk.note[0]
+    two = ranking_table(_fits({"A": group_misfit(e, labels, G), "B": group_misfit(e + 0.1, labels, G)}, field))
+    assert list(two.law) == ["A", "B"] and "note" not in two

@@ -20,20 +20,15 @@ def register(sub):
 
 def run(args) -> int:
     from ..fileio import atomic_path
-    from ..pipeline.tables import fit_table, markdown_table, ranking
+    from ..pipeline.tables import fit_table, markdown_table, ranking_table
     from ..pipeline.gather import load_dataset
 
     ds = load_dataset(args.fits)
     with atomic_path(args.csv) as tmp:
         fit_table(ds).to_csv(tmp, index=False)
     if args.ranking_csv:
-        rk = ranking(ds)
-        if rk is None:      # one law: nothing to rank, its row says so
-            import pandas as pd
-            rk = pd.DataFrame(dict(law=[str(v) for v in ds.law.values], rank=1,
-                                   note="the study fits one law: nothing to rank"))
         with atomic_path(args.ranking_csv) as tmp:
-            rk.to_csv(tmp, index=False)
+            ranking_table(ds).to_csv(tmp, index=False)
     md = markdown_table(ds)
     with atomic_path(args.md) as tmp:
         tmp.write_text(md)
