@@ -79,6 +79,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from ..parallel import RowBlocks, map_coordinates
 from .weights import VoxelWeights
 
 log = logging.getLogger(__name__)
@@ -143,6 +144,8 @@ class NodalTracker:
         self.W = weights.with_min_support(points_m, self.opt.min_support_vox)
         self.Wc = weights.W if self.opt.confidence_window == "elements" else self.W
         self.w_total = np.asarray(self.Wc.sum(1)).ravel()
+        # the same products in row blocks on the cores (`parallel`: identical to the bit)
+        self._W, self._Wc = RowBlocks(self.W), RowBlocks(self.Wc)
         self.n = weights.n_nodes
 
     def start(self, volume: np.ndarray, U0_vox: np.ndarray | None = None):
@@ -165,12 +168,12 @@ class NodalTracker:
 
     def _sample_next(self, coef, pos):
         inside = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
-        return ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror"), inside
+        return map_coordinates(coef, pos, order=3, prefilter=False, mode="mirror"), inside
 
     def _sample(self, coef, grads, pos):
         valid = np.all((pos >= 1.0) & (pos <= self.shape - 2.0), axis=1)
-        J = ndimage.map_coordinates(coef, pos.T, order=3, prefilter=False, mode="mirror")
-        G = np.stack([ndimage.map_coordinates(gr, pos.T, order=1, mode="nearest") for gr in grads], 1)
+        J = map_coordinates(coef, pos, order=3, prefilter=False, mode="mirror")
+        G = np.stack([map_coordinates(gr, pos, order=1, mode="nearest") for gr in grads], 1)
         return J, G, valid
 
     def step(self, volume: np.ndarray):
@@ -184,7 +187,7 @@ class NodalTracker:
         opt = self.opt
         coef, grads = self._prepare(volume)
         v = self.v.copy() if opt.warm_start else np.zeros((self.n, 3))
-        W, Wc = self.W, self.Wc
+        W, Wc = self._W, self._Wc
         base = self.Xa + self.vw.interpolate(self.U)          # voxels at frame k
         ok0 = self.valid
         G = self.G
@@ -193,8 +196,7 @@ class NodalTracker:
             # noise of a frame's gradient is correlated with its (interpolated) values; the
             # two frames' correlations cancel to first order (no errors-in-variables bias)
             pos0 = base + self.vw.interpolate(v)
-            G = 0.5 * (G + np.stack([ndimage.map_coordinates(gr, pos0.T, order=1, mode="nearest")
-                                     for gr in grads], 1))
+            G = 0.5 * (G + np.stack([map_coordinates(gr, pos0, order=1, mode="nearest") for gr in grads], 1))
         g = G * ok0[:, None]
         prod = np.empty((len(g), 6))
         for q, (a, b) in enumerate(_PAIRS):
@@ -265,8 +267,7 @@ class NodalTracker:
         self.U = self.U + v_at
         pos = base + self.vw.interpolate(v_at)
         self.J, self.valid = J1, inside
-        self.G = np.stack([ndimage.map_coordinates(gr, pos.T, order=1, mode="nearest")
-                           for gr in grads], 1)
+        self.G = np.stack([map_coordinates(gr, pos, order=1, mode="nearest") for gr in grads], 1)
         self.v = v
         return v, c
 

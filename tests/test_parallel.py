@@ -1,0 +1,44 @@
+"""Split work (`liverinv.parallel`): the same numbers to the bit as on one thread."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+from scipy import sparse as sp
+
+from liverinv import parallel
+from liverinv.parallel import RowBlocks, map_coordinates
+
+
+def test_row_blocks_give_the_product_of_the_whole_matrix_to_the_bit():
+    A = sp.random(3000, 20000, density=0.01, format="csr", random_state=3)       # 6e5 nonzeros
+    x = np.random.default_rng(4).standard_normal((20000, 3))
+    R = RowBlocks(A, parts=3)
+    assert len(R.blocks) == 3 and sum(b.shape[0] for b in R.blocks) == 3000
+    assert max(b.nnz for b in R.blocks) < 0.4 * A.nnz          # blocks of about equal nonzeros
+    assert np.array_equal(R @ x, A @ x)
+    assert np.array_equal(R @ x[:, 0], A @ x[:, 0])
+    assert R.shape == A.shape
+
+
+def test_small_matrices_stay_whole():
+    A = sp.random(50, 60, density=0.1, format="csr", random_state=1)
+    assert len(RowBlocks(A, parts=4).blocks) == 1
+
+
+def test_split_spline_sampling_gives_the_same_values_to_the_bit():
+    rng = np.random.default_rng(5)
+    coef = ndimage.spline_filter(rng.random((40, 30, 50)).astype(np.float32), order=3, output=np.float32,
+                                 mode="mirror")
+    pts = rng.uniform(-2.0, 45.0, size=(parallel.MIN_SPLIT + 7, 3))      # some outside: mirrored
+    whole = ndimage.map_coordinates(coef, pts.T, order=3, prefilter=False, mode="mirror")
+    assert np.array_equal(map_coordinates(coef, pts, order=3, prefilter=False, mode="mirror"), whole)
+
+
+def test_the_thread_count_comes_from_the_environment(monkeypatch):
+    monkeypatch.setenv("LIVERINV_THREADS", "3")
+    assert parallel.n_threads() == 3
+    monkeypatch.setenv("LIVERINV_THREADS", "0")
+    with pytest.raises(ValueError, match="LIVERINV_THREADS"):
+        parallel.n_threads()
+    monkeypatch.delenv("LIVERINV_THREADS")
+    assert 1 <= parallel.n_threads() <= 4
