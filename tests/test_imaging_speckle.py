@@ -1,6 +1,7 @@
 """Speckle rendering and sequences: seeded, textured where the tissue is, inverse map."""
 
 import numpy as np
+import pytest
 
 from liverinv.imaging.analytic import box_tet10
 from liverinv.imaging.grid import ImageGrid
@@ -83,3 +84,21 @@ def test_volumes_rendered_ahead_come_in_order_and_as_in_a_plain_loop():
     plain = [w.frame(u) for u in shifts]
     assert all(np.array_equal(p, q) for p, q in zip(plain, rendered_ahead(w.frame, shifts, stateless=True)))
     assert not np.array_equal(plain[0], plain[4])
+
+
+@pytest.mark.parametrize("shape", [(9, 7, 11), (6, 1, 5)])
+def test_trilinear_kernel_is_scipys_linear_interpolation_to_rounding(shape):
+    # the compiled sampler of the inverse map and the scatterers' motion against
+    # map_coordinates(order=1, mode="nearest") per component, points beyond the grid included
+    from scipy import ndimage
+
+    from liverinv.imaging.kernels import trilinear
+    rng = np.random.default_rng(2)
+    field = rng.standard_normal(shape + (3,))
+    pts = rng.uniform(-2.0, 1.2 * max(shape), size=(4000, 3))
+    pts[:10] = np.array(shape) - 1.0                     # the last voxel exactly
+    ref = np.stack([ndimage.map_coordinates(field[..., c], pts.T, order=1, mode="nearest") for c in range(3)], 1)
+    got = trilinear(field, pts)
+    assert np.abs(got - ref).max() < 1e-13 * np.abs(field).max()
+    with pytest.raises(ValueError, match="trilinear"):
+        trilinear(field[..., 0], pts)

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from .kernels import trilinear
 from .speckle import Transducer, log_compress, random_scatterers, render_iq
 from .weights import VoxelWeights
 
@@ -67,7 +68,10 @@ class ImagingOptions:
 
 
 def _sample_grid(field_grid: np.ndarray, v: np.ndarray, order: int = 1) -> np.ndarray:
-    """Values of a (*shape, c) grid field at continuous voxel coordinates v (m, 3)."""
+    """Values of a (*shape, c) grid field at continuous voxel coordinates v (m, 3) (beyond the
+    grid: the edge values; order 1 by the compiled `kernels.trilinear`, scipy's to rounding)."""
+    if order == 1:
+        return trilinear(field_grid, v)
     return np.stack([ndimage.map_coordinates(field_grid[..., c], v.T, order=order, mode="nearest")
                      for c in range(field_grid.shape[-1])], axis=1)
 
