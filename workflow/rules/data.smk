@@ -80,10 +80,10 @@ rule track:
     conda:
         "../envs/liverinv.yaml"
     priority: DATA_PRIORITY
-    threads: 1
+    threads: 2
     resources:
         mem_mb=4000,
         runtime=60,
     shell:
-        "liverinv -v track {input.bundle} --mesh {input.mesh} {params.options} --out {output.flow} "
+        "LIVERINV_THREADS={threads} liverinv -v track {input.bundle} --mesh {input.mesh} {params.options} --out {output.flow} "
         "--picture {output.picture} > {log} 2>&1"
