@@ -61,22 +61,30 @@ class RowBlocks:
 
     def __init__(self, matrix, parts: int | None = None):
         self.matrix = sp.csr_matrix(matrix)
-        parts = n_threads() if parts is None else int(parts)
-        if parts < 2 or self.matrix.nnz < MIN_SPLIT or self.matrix.shape[0] < 2 * parts:
-            self.blocks = [self.matrix]
-            return
-        cuts = np.searchsorted(self.matrix.indptr, np.linspace(0, self.matrix.nnz, parts + 1)[1:-1])
-        edges = np.unique(np.concatenate([[0], cuts, [self.matrix.shape[0]]]))
-        self.blocks = [self.matrix[a:b] for a, b in zip(edges[:-1], edges[1:])]
+        self.parts = n_threads() if parts is None else int(parts)
+        self._blocks = None          # made at the first product (a tracker built for its windows only needs none)
 
     @property
     def shape(self):
         return self.matrix.shape
 
+    @property
+    def blocks(self) -> list:
+        if self._blocks is None:
+            A, parts = self.matrix, self.parts
+            if parts < 2 or A.nnz < MIN_SPLIT or A.shape[0] < 2 * parts:
+                self._blocks = [A]
+            else:
+                cuts = np.searchsorted(A.indptr, np.linspace(0, A.nnz, parts + 1)[1:-1])
+                edges = np.unique(np.concatenate([[0], cuts, [A.shape[0]]]))
+                self._blocks = [A[a:b] for a, b in zip(edges[:-1], edges[1:])]
+        return self._blocks
+
     def __matmul__(self, x):
-        if len(self.blocks) == 1:
+        blocks = self.blocks
+        if len(blocks) == 1:
             return self.matrix @ x
-        return np.concatenate(_map(lambda block: block @ x, self.blocks), axis=0)
+        return np.concatenate(_map(lambda block: block @ x, blocks), axis=0)
 
 
 def map_coordinates(values: np.ndarray, points: np.ndarray, **options) -> np.ndarray:
