@@ -142,6 +142,9 @@ def main(argv=None):
     ap.add_argument("--mesh", default="tiny")
     ap.add_argument("--truth-mesh", default="tiny")
     ap.add_argument("--frames", type=int, help="volumes over the cycle (default: the study's 31)")
+    ap.add_argument("--hold", type=float, default=0.0,
+                    help="s held at the peak depth (a ramp-hold-unload cycle); the volumes keep the study's "
+                         "5 Hz and span the longer cycle")
     ap.add_argument("--mode", choices=["scatter", "warp"], default="scatter",
                     help="volumes of moved scatterers with receiver noise and decorrelation (the study's), or "
                          "the first volume warped (synthesize's default, the paper's way; no receiver noise)")
@@ -164,6 +167,13 @@ def main(argv=None):
                 study["imaging"]["mode"] = "warp"
                 study["imaging"]["bmode_noise"] = args.bmode_noise
                 tag = f"{case}_warp{f'n{args.bmode_noise:g}' if args.bmode_noise else ''}_s{seed}"
+            if args.hold:
+                lo = dict(study.get("loading", base["loading"]), hold=args.hold)
+                rate_hz = study["imaging"]["frame_rate_hz"]
+                lo["frames"] = int(round((2 * lo["depth"] / lo["rate"] + args.hold) * rate_hz)) + 1
+                study["loading"] = lo
+                study["imaging"]["frames"] = lo["frames"]
+                tag = tag.replace(case, f"{case}_h{args.hold:g}", 1)
             if args.frames:
                 study["loading"] = dict(base["loading"], frames=args.frames)
                 study["imaging"].update(frames=args.frames, frame_rate_hz=None)   # evenly over the cycle

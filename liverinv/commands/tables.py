@@ -20,16 +20,17 @@ def register(sub):
 
 def run(args) -> int:
     from ..fileio import atomic_path
-    from ..pipeline.tables import fit_table, markdown_table, ranking_table
+    from ..pipeline.tables import fit_table, markdown_table, ranking, ranking_table
     from ..pipeline.gather import load_dataset
 
     ds = load_dataset(args.fits)
+    rank = ranking(ds)   # the paired tests once, for the CSV and the Markdown
     with atomic_path(args.csv) as tmp:
         fit_table(ds).to_csv(tmp, index=False)
     if args.ranking_csv:
         with atomic_path(args.ranking_csv) as tmp:
-            ranking_table(ds).to_csv(tmp, index=False)
-    md = markdown_table(ds)
+            ranking_table(ds, rank).to_csv(tmp, index=False)
+    md = markdown_table(ds, rank)
     with atomic_path(args.md) as tmp:
         tmp.write_text(md)
     print(md)

@@ -47,8 +47,8 @@ def _g(v, fmt=".4g"):
     return "-" if not np.isfinite(v) else format(v, fmt)
 
 
-def markdown_table(ds: xr.Dataset) -> str:
-    """The paper's layout per law; flags below each table."""
+def markdown_table(ds: xr.Dataset, rank: pd.DataFrame | None = None) -> str:
+    """The paper's layout per law; flags below each table; then `rank` (by default `ranking(ds)`)."""
     df = fit_table(ds)
     units = dict(zip([str(p) for p in ds.param.values], [str(u) for u in ds.param_unit.values]))
     phi_u = ds.phi.attrs.get("units", "")
@@ -79,7 +79,7 @@ def markdown_table(ds: xr.Dataset) -> str:
                 notes.append(f"- {r.method} seed {r.seed}: failed: {r.message}")
         if notes:
             out += ["", "Flags:", *notes]
-    rk = ranking(ds)
+    rk = ranking(ds) if rank is None else rank
     if rk is not None:
         out += ["\n## Ranking of the laws by Phi (best fit of each law, at the common noise levels; "
                 "`phi_vol_rank`: the order by Phi_vol)\n",
@@ -144,10 +144,10 @@ def ranking(ds: xr.Dataset) -> pd.DataFrame | None:
     return df
 
 
-def ranking_table(ds: xr.Dataset) -> pd.DataFrame:
-    """`ranking`, or for a study of one law its row with a note that there is nothing to rank
-    (the workflow's ranking.csv exists for every study)."""
-    rk = ranking(ds)
+def ranking_table(ds: xr.Dataset, rank: pd.DataFrame | None = None) -> pd.DataFrame:
+    """`rank` (by default `ranking(ds)`), or for a study of one law its row with a note that
+    there is nothing to rank (the workflow's ranking.csv exists for every study)."""
+    rk = ranking(ds) if rank is None else rank
     if rk is None:
         rk = pd.DataFrame(dict(law=[str(v) for v in ds.law.values], rank=1,
                                note="the study fits one law: nothing to rank"))
