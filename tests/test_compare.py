@@ -104,5 +104,7 @@ def test_the_ranking_table_of_one_law_says_there_is_nothing_to_rank():
     assert ranking(ds) is None
     rk = ranking_table(ds)
     assert list(rk.law) == ["A"] and rk["rank"].tolist() == [1] and "nothing to rank" in rk.note[0]
-    two = ranking_table(_fits({"A": group_misfit(e, labels, G), "B": group_misfit(e + 0.1, labels, G)}, field))
+    two_ds = _fits({"A": group_misfit(e, labels, G), "B": group_misfit(e + 0.1, labels, G)}, field)
+    two = ranking_table(two_ds)
     assert sorted(two.law) == ["A", "B"] and "note" not in two and "z" in two
+    assert ranking_table(two_ds, two) is two          # a ranking computed once is passed through
