@@ -175,9 +175,10 @@ def main(argv=None):
                 study["imaging"]["frames"] = lo["frames"]
                 tag = tag.replace(case, f"{case}_h{args.hold:g}", 1)
             if args.frames:
-                study["loading"] = dict(base["loading"], frames=args.frames)
+                # the case's own loading (a hold, the shallow cycle) with frames spread over it
+                study["loading"] = dict(study.get("loading", base["loading"]), frames=args.frames)
                 study["imaging"].update(frames=args.frames, frame_rate_hz=None)   # evenly over the cycle
-                tag = f"{case}_f{args.frames}_s{seed}"
+                tag = tag.replace(f"_s{seed}", f"_f{args.frames}_s{seed}")
             (args.out / f"{tag}.yaml").write_text(yaml.safe_dump(study))
             b, f, d = args.out / f"{tag}.h5", args.out / f"{tag}_flow.nc", args.out / f"{tag}_disc.nc"
             if not b.exists():
