@@ -168,9 +168,11 @@ def main(argv=None):
                 study["imaging"]["bmode_noise"] = args.bmode_noise
                 tag = f"{case}_warp{f'n{args.bmode_noise:g}' if args.bmode_noise else ''}_s{seed}"
             if args.hold:
+                from liverinv.loading import ramp_history
                 lo = dict(study.get("loading", base["loading"]), hold=args.hold)
-                rate_hz = study["imaging"]["frame_rate_hz"]
-                lo["frames"] = int(round((2 * lo["depth"] / lo["rate"] + args.hold) * rate_hz)) + 1
+                cycle_s = ramp_history(lo["depth"], lo["rate"], frames=2, unload=lo.get("unload", True),
+                                       hold=args.hold).time[-1]
+                lo["frames"] = int(round(cycle_s * study["imaging"]["frame_rate_hz"])) + 1
                 study["loading"] = lo
                 study["imaging"]["frames"] = lo["frames"]
                 tag = tag.replace(case, f"{case}_h{args.hold:g}", 1)
