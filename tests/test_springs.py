@@ -121,3 +121,41 @@ def test_bad_contact_combinations_are_refused(mesh):
         ForwardModel(mesh, punch="bonded").model("elastic+punch_friction", dict(E, k_punch=1e5))
     with pytest.raises(ValueError, match="fixed bottom"):
         ForwardModel(mesh, support="sliding").model("elastic+bottom_slip", dict(E, c_bottom=1e-6))
+
+
+def test_both_models_hold_the_same_components(mesh):
+    """One definition of the boundary conditions: the displacement numbering of the
+    indentation and biphasic models agrees for every contact and support, with the counts
+    each condition implies (a bonded footprint holds 2 more components per footprint node, a
+    fixed bottom 2 more per bottom node than a compliant one, a sliding bottom 3 in all more
+    than a compliant one), and a name that is not a choice is refused by both."""
+    from liverinv.fem.biphasic import Biphasic
+    from liverinv.fem.boundary import constrained_components
+    from liverinv.fem.indentation import Indentation
+    from liverinv.fem.space import Space
+    from liverinv.mesh import read_mesh
+    m = read_mesh(mesh)
+    space = Space(m)
+    n_foot, n_bottom = len(m.nodes("footprint")), len(m.nodes("bottom"))
+    n_free = {}
+    for punch in ("frictionless", "bonded"):
+        for support in ("fixed", "sliding", "compliant"):
+            a = Indentation(space, get_law("elastic").resolve(E), punch, support)
+            b = Biphasic(space, dict(E, kappa=1e-8), punch, support)
+            assert a.n_free == b.n_free
+            np.testing.assert_array_equal(a.asm.index, b.asm.index[:3 * m.n_nodes])
+            fixed, tied = constrained_components(m, punch, support)
+            assert tied.sum() == n_foot and not (fixed & tied).any()
+            n_free[punch, support] = a.n_free
+    for support in ("fixed", "sliding", "compliant"):
+        assert n_free["frictionless", support] - n_free["bonded", support] == 2 * n_foot
+    assert n_free["bonded", "compliant"] - n_free["bonded", "fixed"] == 2 * n_bottom
+    assert n_free["bonded", "compliant"] - n_free["bonded", "sliding"] == 3
+    fixed, _ = constrained_components(m, "frictionless", "fixed", side="confined")
+    assert fixed[m.nodes("side"), :2].all()
+    for kwargs, what in ((dict(punch="glued"), "punch contact"), (dict(support="free"), "support"),
+                         (dict(side="open"), "side")):
+        with pytest.raises(ValueError, match=what):
+            Biphasic(space, dict(E, kappa=1e-8), **kwargs)
+    with pytest.raises(ValueError, match="support must be one of"):
+        Indentation(space, get_law("elastic").resolve(E), support="free")

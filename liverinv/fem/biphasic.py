@@ -66,10 +66,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .assembly import ReducedAssembler
+from .boundary import constrained_components, displacement_numbering, face_springs
 from .indentation import Evaluation, spring_stiffnesses
 from .material import QLVState, _det, element_stiffness, hyperelastic_terms, qlv_commit, qlv_relaxed_stress
 from .space import Space
-from .springs import FaceSpring, SpringTerms
+from .springs import SpringTerms
 
 __all__ = ["Biphasic", "BiphasicState", "BiphasicEvaluation", "DRAINED_DEFAULT", "febio8_space"]
 
@@ -152,36 +153,12 @@ class Biphasic(SpringTerms):
 
     def __init__(self, space: Space, params: dict, punch="frictionless", support="fixed",
                  side="free", drained=DRAINED_DEFAULT, pressure_scale=None):
-        if punch not in ("frictionless", "bonded"):
-            raise ValueError(f"punch contact must be 'frictionless' or 'bonded', not {punch!r}")
-        if support not in ("fixed", "sliding", "compliant"):
-            raise ValueError(f"support must be 'fixed', 'sliding' or 'compliant', not {support!r}")
-        if side not in ("free", "confined"):
-            raise ValueError(f"side must be 'free' or 'confined', not {side!r}")
+        fixed, tied = constrained_components(space.mesh, punch, support, side)
         self.space, self.punch, self.support, self.side = space, punch, support, side
         self.drained = tuple(drained)
         mesh = space.mesh
         n = mesh.n_nodes
         self.footprint = mesh.nodes("footprint")
-        fixed = np.zeros((n, 3), dtype=bool)
-        bottom = mesh.nodes("bottom")
-        if support == "fixed":
-            fixed[bottom] = True
-        elif support == "compliant":
-            fixed[bottom, 2] = True
-        else:
-            fixed[bottom, 2] = True
-            X = mesh.points[bottom]
-            fixed[bottom[np.argmin(np.hypot(X[:, 0], X[:, 1]))], :2] = True
-            fixed[bottom[np.argmax(X[:, 0])], 1] = True
-        if side == "confined":
-            fixed[mesh.nodes("side"), :2] = True
-        if punch == "bonded":
-            fixed[self.footprint, :2] = True
-        tied = np.zeros((n, 3), dtype=bool)
-        tied[self.footprint, 2] = True
-        fixed[tied] = False
-        free = ~fixed & ~tied
         # pressure dofs: one per corner node, full numbering 3 n + corner id
         self.p_nodes = mesh.corner_nodes()
         corner_id = -np.ones(n, dtype=np.int64)
@@ -192,13 +169,12 @@ class Biphasic(SpringTerms):
             dry[mesh.nodes(g)] = True
         p_free = ~dry[self.p_nodes]
         self.n_full = 3 * n + len(self.p_nodes)
-        n_free = int(free.sum())
+        u_index, u_sign, n_free = displacement_numbering(fixed, tied)
         index = -np.ones(self.n_full, dtype=np.int64)
-        index[:3 * n][free.ravel()] = np.arange(n_free)
-        index[:3 * n][tied.ravel()] = n_free
+        index[:3 * n] = u_index
         index[3 * n:][p_free] = n_free + 1 + np.arange(int(p_free.sum()))
         sign = np.ones(self.n_full)
-        sign[:3 * n][tied.ravel()] = -1.0
+        sign[:3 * n] = u_sign
         self.n_free, self.punch_index = n_free, n_free
         self.n_red = n_free + 1 + int(p_free.sum())
         self.p_drained = ~p_free
@@ -209,8 +185,7 @@ class Biphasic(SpringTerms):
                                      & (self.asm.indices[self.punch_positions] == self.punch_index))[0]
         self.Np, self.dNpdX = pressure_shape(space)
         # the tangential springs of `indentation` (friction, slip) act on the u dofs alone
-        self.punch_spring = FaceSpring(mesh.points, mesh.facets["footprint"], self.asm) if punch == "frictionless" else None
-        self.bottom_spring = FaceSpring(mesh.points, mesh.facets["bottom"], self.asm) if support == "compliant" else None
+        self.punch_spring, self.bottom_spring = face_springs(mesh, self.asm, punch, support)
         self._pressure_scale = pressure_scale
         self.set_params(params)
         log.debug("biphasic: %d u unknowns, %d free of %d pressure nodes, s = %.3g Pa/m",

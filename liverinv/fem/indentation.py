@@ -22,16 +22,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from .assembly import ReducedAssembler
+from .boundary import constrained_components, displacement_numbering, face_springs
 from .material import Kinematics, QLVState, element_stiffness, hyperelastic_terms, qlv_commit, qlv_relaxed_stress
 from .space import Space
-from .springs import FaceSpring, SpringTerms
+from .springs import SpringTerms
 
 __all__ = ["Indentation", "Evaluation"]
 
 log = logging.getLogger(__name__)
 
-PUNCH_CONTACTS = ("frictionless", "bonded")
-SUPPORTS = ("fixed", "sliding", "compliant")
 C_BONDED = 1e-12     # m/Pa: the compliant bottom's own compliance at c_bottom = 0
 
 
@@ -84,37 +83,10 @@ class Indentation(SpringTerms):
     symmetric_tangent = True
 
     def __init__(self, space: Space, params: dict, punch="frictionless", support="fixed"):
-        if punch not in PUNCH_CONTACTS:
-            raise ValueError(f"punch contact must be one of {PUNCH_CONTACTS}, not {punch!r}")
-        if support not in SUPPORTS:
-            raise ValueError(f"support must be one of {SUPPORTS}, not {support!r}")
+        fixed, tied = constrained_components(space.mesh, punch, support)
         self.space, self.punch, self.support = space, punch, support
-        mesh = space.mesh
-        n = mesh.n_nodes
-        self.footprint = mesh.nodes("footprint")
-        bottom = mesh.nodes("bottom")
-        fixed = np.zeros((n, 3), dtype=bool)
-        if support == "fixed":
-            fixed[bottom] = True
-        elif support == "compliant":
-            fixed[bottom, 2] = True
-        else:
-            fixed[bottom, 2] = True
-            X = mesh.points[bottom]
-            centre = bottom[np.argmin(np.hypot(X[:, 0], X[:, 1]))]
-            fixed[centre, :2] = True
-            fixed[bottom[np.argmax(X[:, 0])], 1] = True
-        tied = np.zeros((n, 3), dtype=bool)
-        tied[self.footprint, 2] = True
-        if punch == "bonded":
-            fixed[self.footprint, :2] = True
-        free = ~fixed & ~tied
-        index = -np.ones(3 * n, dtype=np.int64)
-        n_free = int(free.sum())
-        index[free.ravel()] = np.arange(n_free)
-        index[tied.ravel()] = n_free
-        sign = np.ones(3 * n)
-        sign[tied.ravel()] = -1.0
+        self.footprint = space.mesh.nodes("footprint")
+        index, sign, n_free = displacement_numbering(fixed, tied)
         self.n_free = n_free
         self.punch_index = n_free
         self.n_red = n_free + 1
@@ -122,8 +94,7 @@ class Indentation(SpringTerms):
         self.punch_positions = self.asm.positions(row=self.punch_index, col=self.punch_index)
         self.punch_diag = np.nonzero((self.asm.rows[self.punch_positions] == self.punch_index)
                                      & (self.asm.indices[self.punch_positions] == self.punch_index))[0]
-        self.punch_spring = FaceSpring(mesh.points, mesh.facets["footprint"], self.asm) if punch == "frictionless" else None
-        self.bottom_spring = FaceSpring(mesh.points, mesh.facets["bottom"], self.asm) if support == "compliant" else None
+        self.punch_spring, self.bottom_spring = face_springs(space.mesh, self.asm, punch, support)
         self.set_params(params)
 
     # -- material ----------------------------------------------------------------------
