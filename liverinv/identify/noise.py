@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["NoiseModel", "white_noise_rms", "reversals", "smooth_record", "piecewise_quadratic",
+__all__ = ["NoiseModel", "white_noise_rms", "reversals", "kinks", "smooth_record", "piecewise_quadratic",
            "tracking_noise", "noise_model"]
 
 log = logging.getLogger(__name__)
@@ -81,6 +81,76 @@ def reversals(t, y, sigma, min_fraction=0.05):
         return np.zeros(0)
     peaks = np.concatenate([find_peaks(ys, prominence=prom)[0], find_peaks(-ys, prominence=prom)[0]])
     return np.sort(t[peaks])
+
+
+def _window_slopes(t, y, n):
+    """Least-squares slopes of y(t) over the n + 1 samples ending at (left) and starting at
+    (right) each sample i = n .. len - n - 1, and their standard errors per unit noise."""
+    c = lambda a: np.concatenate([[0.0], np.cumsum(a)])
+    tc = t - t.mean()
+    St, Sy, Stt, Sty = c(tc), c(y), c(tc * tc), c(tc * y)
+    m = n + 1
+
+    def fit(lo):   # windows [lo, lo + n]
+        hi = lo + m
+        st, sy, stt, sty = St[hi] - St[lo], Sy[hi] - Sy[lo], Stt[hi] - Stt[lo], Sty[hi] - Sty[lo]
+        sxx = stt - st * st / m
+        return (sty - st * sy / m) / sxx, 1.0 / np.sqrt(sxx)
+
+    i = np.arange(n, len(t) - n)
+    (bl, el), (br, er) = fit(i - n), fit(i)
+    return i, bl, br, np.hypot(el, er)
+
+
+def kinks(t, y, sigma, min_fraction=0.05, window=20, z=6.0):
+    """Times where a load history's slope changes abruptly (a reversal, the start or end of a
+    hold, a change of rate): the breaks a smoothing spline must not round, with the
+    `reversals` (which also catch smooth turns).
+
+    A sample is a candidate where the slopes fitted over the `window` samples on either side
+    differ by more than z of their standard errors (noise `sigma`) and by more than
+    `min_fraction` of the record's largest slope, and by the most within a window. Its time is
+    refined between samples by the continuous hinge (two lines meeting at the kink) that
+    fits the 2 `window` + 1 samples best, and it is kept where that hinge beats a quadratic
+    by z^2 sigma^2 in squared residual (a smooth turn is no kink). Measured on a 6 mm ramp,
+    2 s hold and unload at 100 Hz with the paper's 3.9 um noise (tests/test_noise.py): the
+    hold's start and end within 0.01 s, and the drive depth of the frames within 1 um of
+    the truth instead of 17 um with the reversals alone. A reversal of the record away from
+    the kinks is kept where the slopes on its two sides have opposite signs and are steep (a
+    smooth turn); the noise's extremum on a hold is not."""
+    t, y = np.asarray(t, float), np.asarray(y, float)
+    turns = reversals(t, y, sigma, min_fraction)
+    if sigma <= 0 or len(t) < 2 * window + 1:
+        return turns
+    i, bl, br, se = _window_slopes(t, y, window)
+    jump = np.abs(br - bl)
+    steep = min_fraction * max(np.abs(bl).max(), np.abs(br).max())
+    cand = np.flatnonzero((jump > z * sigma * se) & (jump > steep))
+    found = []
+    for k in cand[np.argsort(-jump[cand])]:
+        c = i[k]
+        if any(abs(c - f) <= window for f, _ in found):
+            continue
+        s = slice(c - window, c + window + 1)
+        ts, ys = t[s], y[s]
+        quad = np.linalg.lstsq(np.vander(ts - t[c], 3), ys, rcond=None)[1]
+        best = (np.inf, t[c])
+        for tk in np.linspace(t[c - 2], t[c + 2], 81):
+            A = np.column_stack([np.ones_like(ts), ts - tk, np.maximum(ts - tk, 0.0)])
+            r = ys - A @ np.linalg.lstsq(A, ys, rcond=None)[0]
+            best = min(best, (float(r @ r), float(tk)))
+        if quad.size and quad[0] - best[0] > (z * sigma) ** 2:
+            found.append((c, best[1]))
+    out = [tk for _, tk in found]
+    # a reversal away from the kinks is kept where the record turns (slopes of opposite sign,
+    # each steeper than min_fraction of the largest): not the noise's extremum on a hold
+    dt = float(np.median(np.diff(t)))
+    for tr in turns:
+        c = int(np.clip(np.searchsorted(t, tr), window, len(t) - window - 1)) - window
+        if all(abs(tr - tk) > window * dt for tk in out) and bl[c] * br[c] < 0 \
+                and min(abs(bl[c]), abs(br[c])) > steep:
+            out.append(float(tr))
+    return np.sort(np.asarray(out, float))
 
 
 def smooth_record(t, y, sigma, breaks=()):

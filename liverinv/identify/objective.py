@@ -23,10 +23,11 @@ tracker would have reported it, i.e. window-averaged like the tracked motion
 
 Noise-aware objective (`noise=` a `noise.NoiseModel`; the default of `liverinv fit`): a
 Gaussian likelihood. The model is driven by the measured depth (displacement control; the
-record smoothed by GCV splines on each side of the load reversals, which are driving times
-too, `noise.smooth_record`) and compared with the measured force at every indenter sample
-(the model's force interpolated quadratically between driving times, not across a reversal); the tracked motion is
-compared frame pair by frame pair, each residual divided by its standard deviation::
+record smoothed by GCV splines between the kinks of the load history, `noise.smooth_record`:
+the reversals and the ends of a hold, `noise.kinks`, which are driving times too) and
+compared with the measured force at every indenter sample (the model's force interpolated
+quadratically between driving times, not across a kink); the tracked motion is compared
+frame pair by frame pair, each residual divided by its standard deviation::
 
     r_vol = sqrt(c) (u_OF - u_FEM) / sigma_track         (per frame pair, node, direction)
     r_ind = (F_exp,s - F_model(t_s)) / sigma_F            (per indenter sample s)
@@ -50,7 +51,7 @@ import numpy as np
 from ..fem.sensitivity import Sensitivity
 from ..fem.solver import ConvergenceError, NewtonOptions, solve_history
 from ..forward import ForwardModel
-from .noise import piecewise_quadratic, reversals, smooth_record
+from .noise import kinks, piecewise_quadratic, smooth_record
 
 __all__ = ["Measurements", "Objective", "Evaluation"]
 
@@ -189,10 +190,16 @@ class Objective:
             if min(noise.force_N, noise.depth_m, noise.tracking_m) <= 0:
                 raise ValueError(f"noise levels must be positive: {noise}")
             self.control = "displacement"
-            # the reversals are driving times too, and neither the smoothing of the depth nor
-            # the interpolation of the model's force crosses them
-            self.breaks = reversals(data.t_ind, data.depth, noise.depth_m)
-            self.breaks = self.breaks[(self.breaks > t[0]) & (self.breaks < t[-1])]
+            # the kinks of the load history (reversals, the ends of a hold) are driving times
+            # too, and neither the smoothing of the depth nor the interpolation of the model's
+            # force crosses them; a kink within one indenter sample of a frame time is taken
+            # there (the kink's time is known to about a sample, and a step that short only
+            # costs a solve)
+            breaks = kinks(data.t_ind, data.depth, noise.depth_m)
+            dt_ind = float(np.median(np.diff(data.t_ind)))
+            near = np.abs(breaks[:, None] - t[None, :])
+            breaks = np.where(near.min(axis=1) <= dt_ind, t[near.argmin(axis=1)], breaks) if t.size else breaks
+            self.breaks = np.unique(breaks[(breaks > t[0]) & (breaks < t[-1])])
             t = self.t_drive = np.unique(np.concatenate([t, self.breaks]))
             self.d_drive = smooth_record(data.t_ind, data.depth, noise.depth_m, self.breaks)(t)
             self.d_drive[0] = 0.0
