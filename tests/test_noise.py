@@ -186,3 +186,23 @@ def test_block_inflation_measures_variance_and_correlation():
     lam = [block_inflation(Jg, np.sqrt(0.5) * (np.repeat(rng.normal(size=G), n // G) + rng.normal(size=n)),
                            groups, slice(None)) for _ in range(50)]
     assert np.mean(lam) == pytest.approx(10.5, rel=0.15)
+
+
+def test_relaxation_fitted_through_a_hold(noisy_case):
+    """SR truth (g1 0.4, tau_g1 0.3 s) on the tiny mesh, 4 mm at 2 mm/s, 1 s hold, unload,
+    the paper's indenter noise: the drive breaks at the hold's two ends (frame times), and the
+    least-squares fit from 20 % off recovers every parameter within 5 % on two noise seeds
+    (measured 0.3-2.8 %). With the reversals alone as breaks (one at the noise's extremum on
+    the hold, 2.96 s) the same fits ended at C1 +10-12 %, C2 +13-16 %, g1 +18 %, tau_g1 -27 %
+    (session 31, /tmp/s31/t/hold_fit.py)."""
+    fm, _ = noisy_case
+    truth = dict(TRUTH, g1=0.4, tau_g1=0.3)
+    run = fm.run("SR", truth, ramp_history(4e-3, 2e-3, frames=31, unload=True, hold=1.0))
+    start = {k: v * (1.2 if i % 2 else 0.8) for i, (k, v) in enumerate(truth.items())}
+    noise = NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {})
+    for seed in range(2):
+        obj = Objective(fm, "SR", noisy_measurements(run, seed), noise=noise)
+        np.testing.assert_array_equal(obj.breaks, [2.0, 3.0])
+        out = Fit(obj, start).least_squares()
+        for k, v in truth.items():
+            assert out["params"][k] == pytest.approx(v, rel=0.05), (seed, k, out["params"])
