@@ -16,8 +16,8 @@ import numpy as np
 
 from .springs import FaceSpring
 
-__all__ = ["PUNCH_CONTACTS", "SUPPORTS", "SIDES", "constrained_components", "displacement_numbering",
-           "face_springs"]
+__all__ = ["PUNCH_CONTACTS", "SUPPORTS", "SIDES", "check_names", "constrained_components",
+           "displacement_numbering", "face_springs"]
 
 PUNCH_CONTACTS = ("frictionless", "bonded")
 SUPPORTS = ("fixed", "sliding", "compliant")

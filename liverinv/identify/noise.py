@@ -195,8 +195,8 @@ def kinks(t, y, sigma, min_fraction=0.05, window=None, z=6.0):
 @_per_record
 def smooth_record(t, y, sigma, breaks=()):
     """Smoothing spline of noisy samples y(t) (scipy's `make_smoothing_spline`, lam by
-    generalized cross-validation), one per piece between the `breaks` (the load reversals,
-    which a single spline would round); `sigma` <= 0 (a noise-free record) gives the linear
+    generalized cross-validation), one per piece between the `breaks` (the load history's
+    kinks, which a single spline would round); `sigma` <= 0 (a noise-free record) gives the linear
     interpolant of the samples. Returns a callable.
 
     GCV rather than the discrepancy principle (residual RMS = sigma): on a 6 mm load-unload
