@@ -1,4 +1,5 @@
-"""Split work over the cores: sparse products by row blocks, spline sampling by point chunks.
+"""Split work over the cores: sparse products by row blocks, spline sampling by point chunks,
+and independent solves beside this process's own work (`beside`).
 
 scipy's sparse products with a dense array (`csr_matvecs`) and ndimage's `map_coordinates`
 release the GIL, so the row blocks of a CSR matrix, or the chunks of a list of sample points,
@@ -14,14 +15,17 @@ The number of threads is ``LIVERINV_THREADS`` if set, else the cores this proces
 
 from __future__ import annotations
 
+import multiprocessing
 import os
-from concurrent.futures import ThreadPoolExecutor
+import sys
+import threading
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
 import numpy as np
 from scipy import ndimage
 from scipy import sparse as sp
 
-__all__ = ["n_threads", "RowBlocks", "map_coordinates"]
+__all__ = ["n_threads", "RowBlocks", "map_coordinates", "beside"]
 
 #: nonzeros (products) or sample points below which one thread is as fast as several
 MIN_SPLIT = 100_000
@@ -96,3 +100,72 @@ def map_coordinates(values: np.ndarray, points: np.ndarray, **options) -> np.nda
         return ndimage.map_coordinates(values, points.T, **options)
     chunks = np.array_split(points, parts)
     return np.concatenate(_map(lambda p: ndimage.map_coordinates(values, p.T, **options), chunks))
+
+
+_BESIDE = None     # the work of `beside`, seen by its forked worker as it was at the fork
+
+
+def _beside_job(i: int):
+    return _BESIDE(i)
+
+
+def _forget_pool():
+    """In a forked worker: the parent's thread pool has no threads here."""
+    global _pool
+    _pool = None
+
+
+def beside(main, work, n: int):
+    """``main()`` here while ``work(i)`` for i = 0 .. n-1 runs in one more process, from the
+    front, one job at a time; the jobs it has not started when ``main`` returns run here, from
+    the back (so neither side waits while the other has work). Returns
+    ``(main(), [work(0), ...])``.
+
+    The worker is forked (Linux): it sees this process's objects as they are, and only the
+    job index and the result are pickled. Where fork is not available, the worker is a
+    thread (sparse factorizations and large array operations release the GIL). Run it under
+    one thread per BLAS/OpenMP library (`threadpoolctl.threadpool_limits(1)`): the two sides
+    each have one core of two."""
+    global _BESIDE
+    if n == 0:
+        return main(), []
+    forked = sys.platform == "linux" and "fork" in multiprocessing.get_all_start_methods()
+    lock = threading.Lock()
+    bounds = [0, n]          # the next job from the front, one past the last from the back
+    futures = {}
+
+    def claim(front: bool):
+        with lock:
+            if bounds[0] >= bounds[1]:
+                return None
+            if front:
+                bounds[0] += 1
+                return bounds[0] - 1
+            bounds[1] -= 1
+            return bounds[1]
+
+    def submit_next(_=None):      # a job is handed over only when the worker is free
+        i = claim(front=True)
+        if i is not None:
+            futures[i] = pool.submit(_beside_job if forked else work, i)
+            futures[i].add_done_callback(submit_next)
+
+    _BESIDE = work
+    try:
+        pool = (ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                                    initializer=_forget_pool) if forked
+                else ThreadPoolExecutor(max_workers=1, thread_name_prefix="beside"))
+        with pool:
+            submit_next()
+            try:
+                first = main()
+            except BaseException:
+                while claim(front=False) is not None:      # nothing more is handed over
+                    pass
+                raise
+            here = {}
+            while (i := claim(front=False)) is not None:
+                here[i] = work(i)
+            return first, [here[i] if i in here else futures[i].result() for i in range(n)]
+    finally:
+        _BESIDE = None

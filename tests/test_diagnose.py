@@ -548,7 +548,7 @@ def test_under_the_strict_level_a_large_predicted_drop_needs_only_the_nominal_le
     assert "recommended: it passes the nominal level 0.01 with a predicted drop of 5 % or more" in text
 
 
-def test_a_secant_whose_full_size_does_not_solve_is_taken_nearly_full(tiny, monkeypatch):
+def test_a_secant_whose_full_size_does_not_solve_is_taken_nearly_full(tiny, monkeypatch, tmp_path):
     """The bonded punch's penalty (1e12 Pa/m) can stall Newton (the BR fit of warped Darcy flow
     + bonded punch data did not solve there, and at 1e10 not in every setup tried by hand):
     the secant is then taken to the fallbacks (1e10, then 1e9 Pa/m) and still finds a planted
@@ -559,16 +559,19 @@ def test_a_secant_whose_full_size_does_not_solve_is_taken_nearly_full(tiny, monk
     out = fit.least_squares()
     far = CATALOG["punch_friction"].far
     assert CATALOG["punch_friction"].far_fallback[0] == far / 100
-    amplitudes = []
+    tried = tmp_path / "k_punch.txt"     # the secants are solved in a forked process (`parallel.beside`)
     solve = Objective.evaluate_model
 
     def stalls_at_full_size(self, params, model, *args, **kw):
-        amplitudes.append(getattr(model, "k_punch", 0.0))
-        if amplitudes[-1] >= 1e12:
+        k_punch = getattr(model, "k_punch", 0.0)
+        with open(tried, "a") as f:
+            f.write(f"{k_punch!r}\n")
+        if k_punch >= 1e12:
             return Evaluation(dict(params), False, np.nan, np.nan, np.nan, message="line search failed")
         return solve(self, params, model, *args, **kw)
     monkeypatch.setattr(Objective, "evaluate_model", stalls_at_full_size)
     d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"], effects=["punch_friction"])
+    amplitudes = [float(v) for v in tried.read_text().split()]
     assert 1e12 in amplitudes and 1e10 in amplitudes and 1e9 not in amplitudes
     top = d["rows"][0]
     assert d["n_solves"] == 3 and top["secant"] and top["predicted_drop"] > 0.3

@@ -1,5 +1,7 @@
 """Split work (`liverinv.parallel`): the same numbers to the bit as on one thread."""
 
+import os
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -42,3 +44,37 @@ def test_the_thread_count_comes_from_the_environment(monkeypatch):
         parallel.n_threads()
     monkeypatch.delenv("LIVERINV_THREADS")
     assert 1 <= parallel.n_threads() <= 4
+
+
+def _solve_in_order(i):
+    """A job that takes a while: a dense solve whose answer depends on i."""
+    A = np.eye(60) * (2.0 + i) + np.ones((60, 60)) / 60
+    return float(np.linalg.solve(A, np.ones(60)).sum()), os.getpid()
+
+
+@pytest.mark.parametrize("main_seconds", [0.0, 0.3])
+def test_beside_returns_every_job_in_order(main_seconds):
+    """Whether this process is busy for long (the worker does the jobs) or not at all (this
+    process takes most of them from the back), every job is done once, in its place."""
+    import time
+    expected = [_solve_in_order(i)[0] for i in range(7)]
+    first, results = parallel.beside(lambda: time.sleep(main_seconds) or "main", _solve_in_order, 7)
+    assert first == "main"
+    assert [r[0] for r in results] == expected
+    if main_seconds and parallel.sys.platform == "linux":
+        # the forked worker did at least the first job
+        assert results[0][1] != os.getpid()
+
+
+def test_beside_raises_what_a_job_or_main_raised():
+    def bad(i):
+        if i == 2:
+            raise ValueError("job 2 failed")
+        return i
+    with pytest.raises(ValueError, match="job 2 failed"):
+        parallel.beside(lambda: None, bad, 4)
+
+    def bad_main():
+        raise RuntimeError("main failed")
+    with pytest.raises(RuntimeError, match="main failed"):
+        parallel.beside(bad_main, _solve_in_order, 3)

@@ -47,13 +47,13 @@ from __future__ import annotations
 import json
 import logging
 import time as _time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
 from scipy import stats
 from threadpoolctl import threadpool_limits
 
+from ..parallel import beside
 from .effects import CATALOG, INCLUSION_DEPTHS_M, INCLUSION_RADII_M, available_effects, sphere_allowed
 
 __all__ = ["diagnose", "confirm_by_tracker_response", "refine_inclusion", "ALPHA", "MIN_DROP"]
@@ -113,26 +113,21 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float | 
     # effects that saturate far from their null (a bonded punch, a sliding bottom) also by the
     # secant to their full size: one solve each, its residual's change a column like the others
     # and effects far from linear in their amplitude (Darcy flow) by secants at a scan of it.
-    # They are solved in a second thread while this one makes the sensitivity step (the sparse
-    # factorizations and most array work release the GIL), with one thread each in MKL and
-    # OpenBLAS: PARDISO's two threads in each solve made the pair hardly faster than one after
-    # the other (the warped neo-Hookean null of seed 15: 9.4-9.6 s one after the other, 9.0 s
-    # overlapped, 8.0-8.3 s so). Where the secants take longer than the sensitivity step (on a
-    # busy machine), this thread then solves those the second has not started.
+    # They are solved in a second, forked process while this one makes the sensitivity step,
+    # with one thread each in MKL and OpenBLAS; those the second has not started when the step
+    # is done are solved here (`parallel.beside`). In a second thread instead (the GIL is held
+    # by the assembly's Python), the pair took as long as one after the other (the warped
+    # elastic null of seed 34: 10.5-11.0 s overlapped, 4.95 + 5.15 s one after the other).
     jobs = [(e, a) for e in cands for a in e.secant_points()]
-    with threadpool_limits(limits=1 if jobs else None), \
-            ThreadPoolExecutor(max_workers=1, thread_name_prefix="secant") as pool:
-        secant_solves = [pool.submit(_secant_solve, objective, params, model, full, fm, e, a) for e, a in jobs]
+
+    def sensitivity_step():
         ev = objective.evaluate_model(dict(params), model, dirs, EPS)
-        if not ev.ok:
-            for f in secant_solves:
-                f.cancel()
+        if not ev.ok:      # (no more secants are started)
             raise ValueError(f"the forward solve at the fit's optimum failed: {ev.message}")
-        solved = [None] * len(jobs)
-        for i in reversed(range(len(jobs))):      # the second thread takes them from the front
-            if secant_solves[i].cancel():
-                solved[i] = _secant_solve(objective, params, model, full, fm, *jobs[i])
-        solved = [s if s is not None else f.result() for s, f in zip(solved, secant_solves)]
+        return ev
+    with threadpool_limits(limits=1 if jobs else None):
+        ev, solved = beside(sensitivity_step, lambda i: _secant_solve(objective, params, model, full, fm, *jobs[i]),
+                            len(jobs))
     r, J = ev.residual, ev.jacobian
     if phi_vol is None:
         phi_vol = float(ev.phi_vol)
