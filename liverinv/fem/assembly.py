@@ -52,6 +52,7 @@ class ReducedAssembler:
         self.indices = c.astype(np.int32)
         self.rows = r
         self.indptr = self.indptr.astype(np.int32)
+        self._fixed = {}       # index -> positions of its row and column, and of its diagonal (`fix`)
 
     def expand(self, q):
         """Full dof vector from reduced unknowns (n_red,), or full dof vectors (n_full, k)
@@ -74,6 +75,17 @@ class ReducedAssembler:
         """Reduced CSR matrix of element matrices Ke (ne, m, m); pattern shared by all calls."""
         data = np.bincount(self._mat_map, weights=self._mat_sign * Ke[self._mat_mask], minlength=self.nnz)
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.n_red, self.n_red))
+
+    def fix(self, K, index: int):
+        """Make the reduced unknown `index` prescribed in K (a matrix of `matrix`): its row and
+        column 0, its diagonal 1 (the positions are found once per index)."""
+        at = self._fixed.get(index)
+        if at is None:
+            pos = self.positions(row=index, col=index)
+            at = self._fixed[index] = (pos, pos[(self.rows[pos] == index) & (self.indices[pos] == index)])
+        K.data[at[0]] = 0.0
+        K.data[at[1]] = 1.0
+        return K
 
     def positions(self, row=None, col=None):
         """Positions in the CSR data of the entries of one row and/or one column."""

@@ -180,9 +180,6 @@ class Biphasic(SpringTerms):
         self.p_drained = ~p_free
         self.edofs = np.concatenate([space.edofs, 3 * n + self.p_elem], axis=1)   # (ne, 34)
         self.asm = ReducedAssembler(self.edofs, index, sign, self.n_red)
-        self.punch_positions = self.asm.positions(row=self.punch_index, col=self.punch_index)
-        self.punch_diag = np.nonzero((self.asm.rows[self.punch_positions] == self.punch_index)
-                                     & (self.asm.indices[self.punch_positions] == self.punch_index))[0]
         self.Np, self.dNpdX = pressure_shape(space)
         # the tangential springs of `indentation` (friction, slip) act on the u dofs alone
         self.punch_spring, self.bottom_spring = face_springs(mesh, self.asm, punch, support)
@@ -324,9 +321,7 @@ class Biphasic(SpringTerms):
 
     def fix_punch(self, K):
         """Make the punch depth a prescribed unknown in K (displacement control)."""
-        K.data[self.punch_positions] = 0.0
-        K.data[self.punch_positions[self.punch_diag]] = 1.0
-        return K
+        return self.asm.fix(K, self.punch_index)
 
     # -- diagnostics ---------------------------------------------------------------------
     def drained_outflow(self, ev: BiphasicEvaluation) -> float:

@@ -91,9 +91,6 @@ class Indentation(SpringTerms):
         self.punch_index = n_free
         self.n_red = n_free + 1
         self.asm = ReducedAssembler(space.edofs, index, sign, self.n_red)
-        self.punch_positions = self.asm.positions(row=self.punch_index, col=self.punch_index)
-        self.punch_diag = np.nonzero((self.asm.rows[self.punch_positions] == self.punch_index)
-                                     & (self.asm.indices[self.punch_positions] == self.punch_index))[0]
         self.punch_spring, self.bottom_spring = face_springs(space.mesh, self.asm, punch, support)
         self.set_params(params)
 
@@ -212,6 +209,4 @@ class Indentation(SpringTerms):
 
     def fix_punch(self, K):
         """Make the punch depth a prescribed unknown in K (displacement control)."""
-        K.data[self.punch_positions] = 0.0
-        K.data[self.punch_positions[self.punch_diag]] = 1.0
-        return K
+        return self.asm.fix(K, self.punch_index)
