@@ -97,7 +97,15 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "weak_bulk": ("BR", dict(E, D2=1000.0, k1=0.3, tau_k1=1.0), {}, "elastic"),
          "soft_inclusion_off": ("elastic", E, inclusion(1 / 3, 0.005, (0.006, -0.002, 0.021)), "elastic"),
          "sr_friction_k3e6": ("SR+punch_friction", dict(SR, k_punch=3e6), {}, "SR"),
-         "shear_slip": ("SR", SR, {"contact": {"support": "sliding"}}, "elastic")}
+         "shear_slip": ("SR", SR, {"contact": {"support": "sliding"}}, "elastic"),
+         # session 32, held out: the quartic bulk term with a bonded punch (two at once; the
+         # quartic term was added in place of partial friction in session 31); partial bottom slip
+         # behind SR; fast bulk relaxation behind elastic
+         "nlbulk_friction": ("elastic_D2", dict(E, D2=3e-4), {"contact": {"punch": "bonded"}}, "elastic"),
+         "sr_slip_partial": ("SR+bottom_slip", dict(SR, c_bottom=2e-5), {}, "SR"),
+         "fast_bulk": ("BR", dict(E, D2=1000.0, k1=0.4, tau_k1=0.1), {}, "elastic"),
+         # and a null behind a biphasic base (PE truth, PE base)
+         "pe_null": ("PE", dict(E, kappa=1e-8), {}, "PE")}
 
 
 def mesh_file(name, out):
