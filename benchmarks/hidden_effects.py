@@ -105,7 +105,9 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "sr_slip_partial": ("SR+bottom_slip", dict(SR, c_bottom=2e-5), {}, "SR"),
          "fast_bulk": ("BR", dict(E, D2=1000.0, k1=0.4, tau_k1=0.1), {}, "elastic"),
          # and a null behind a biphasic base (PE truth, PE base)
-         "pe_null": ("PE", dict(E, kappa=1e-8), {}, "PE")}
+         "pe_null": ("PE", dict(E, kappa=1e-8), {}, "PE"),
+         # two boundary effects at once: a bonded punch on a sliding bottom
+         "slip_friction": ("elastic", E, {"contact": {"punch": "bonded", "support": "sliding"}}, "elastic")}
 
 
 def mesh_file(name, out):
