@@ -130,7 +130,7 @@ def beside(main, work, n: int):
     if n == 0:
         return main(), []
     forked = sys.platform == "linux" and "fork" in multiprocessing.get_all_start_methods()
-    lock = threading.Lock()
+    lock = threading.RLock()
     bounds = [0, n]          # the next job from the front, one past the last from the back
     futures = {}
 
@@ -145,10 +145,12 @@ def beside(main, work, n: int):
             return bounds[1]
 
     def submit_next(_=None):      # a job is handed over only when the worker is free
-        i = claim(front=True)
-        if i is not None:
-            futures[i] = pool.submit(_beside_job if forked else work, i)
-            futures[i].add_done_callback(submit_next)
+        with lock:                # claimed and its future stored at once: `main`'s side reads it
+            i = claim(front=True)
+            if i is None:
+                return
+            future = futures[i] = pool.submit(_beside_job if forked else work, i)
+        future.add_done_callback(submit_next)
 
     _BESIDE = work
     try:

@@ -77,8 +77,7 @@ def reversals(t, y, sigma, min_fraction=0.05):
     if sigma <= 0 or len(t) < 10:
         ys = y
     else:
-        from scipy.interpolate import make_smoothing_spline
-        ys = make_smoothing_spline(*_binned(t, y))(t)
+        ys = _gcv_spline(t, y)(t)
     prom = min_fraction * float(np.ptp(ys))
     if prom <= 0:
         return np.zeros(0)
@@ -213,6 +212,12 @@ def _binned(t, y, bins: int | None = None):
     return (np.add.reduceat(t, edges[:-1]) / count, np.add.reduceat(y, edges[:-1]) / count, count)
 
 
+def _gcv_spline(t, y):
+    """scipy's `make_smoothing_spline` of y(t), lam by GCV, from the bin means of a long record."""
+    from scipy.interpolate import make_smoothing_spline
+    return make_smoothing_spline(*_binned(t, y))
+
+
 @_per_record
 def smooth_record(t, y, sigma, breaks=()):
     """Smoothing spline of noisy samples y(t) (scipy's `make_smoothing_spline`, lam by
@@ -226,7 +231,6 @@ def smooth_record(t, y, sigma, breaks=()):
     discrepancy principle; split at the reversal, GCV leaves 0.07-0.11 sigma RMS and at most
     0.28 sigma (tests/test_noise.py). A piece of more than `SPLINE_BINS` samples is smoothed
     from its bin means (`_binned`)."""
-    from scipy.interpolate import make_smoothing_spline
 
     t, y = np.asarray(t, float), np.asarray(y, float)
     if sigma <= 0:
@@ -235,7 +239,7 @@ def smooth_record(t, y, sigma, breaks=()):
     pieces = []
     for a, b in zip(edges[:-1], edges[1:]):
         m = (t >= a - 1e-12) & (t <= b + 1e-12)
-        pieces.append(make_smoothing_spline(*_binned(t[m], y[m])) if m.sum() >= 5 else
+        pieces.append(_gcv_spline(t[m], y[m]) if m.sum() >= 5 else
                       (lambda tq, tm=t[m], ym=y[m]: np.interp(tq, tm, ym)))
 
     def smoothed(tq):
