@@ -23,6 +23,11 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 E = dict(C1=200.0, C2=5000.0, D1=1.5e-3)
 SR = dict(E, g1=0.4, tau_g1=0.5)
+INCOMPRESSIBLE = dict(C1=300.0, C2=2000.0, D1=3e-4)
+#: a creep test: the force ramped to 0.25 N in 2 s (about 5.8 mm on E), held 3 s, unloaded in 2 s;
+#: force control from a CSV the benchmark writes beside the study (`creep_force_csv`)
+CREEP = {"control": "force", "force_history": "creep_force.csv"}
+CREEP_FORCE = ((0.0, 2.0, 5.0, 7.0), (0.0, 0.25, 0.25, 0.0))     # s, N
 SHALLOW = {"control": "displacement", "depth": 3.5e-3, "rate": 3.5e-3 / 3, "frames": 31, "unload": True}
 
 
@@ -107,7 +112,27 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          # and a null behind a biphasic base (PE truth, PE base)
          "pe_null": ("PE", dict(E, kappa=1e-8), {}, "PE"),
          # two boundary effects at once: a bonded punch on a sliding bottom
-         "slip_friction": ("elastic", E, {"contact": {"punch": "bonded", "support": "sliding"}}, "elastic")}
+         "slip_friction": ("elastic", E, {"contact": {"punch": "bonded", "support": "sliding"}}, "elastic"),
+         # session 33, held out: other tissues than E. Nulls of a stiffer, nearly incompressible
+         # tissue (nu about 0.45, where the coarse mesh locks more) and of a soft, compressible one
+         # that stiffens strongly; a null of slow shear relaxation behind SR; shear relaxation hidden
+         # in the nearly incompressible tissue
+         "null_incompressible": ("elastic", INCOMPRESSIBLE, {}, "elastic"),
+         "null_soft": ("elastic", dict(C1=100.0, C2=8000.0, D1=4e-3), {}, "elastic"),
+         "sr_null_slow": ("SR", dict(C1=150.0, C2=4000.0, D1=1e-3, g1=0.25, tau_g1=2.0), {}, "SR"),
+         "shear_incompressible": ("SR", dict(INCOMPRESSIBLE, g1=0.4, tau_g1=0.5), {}, "elastic"),
+         # force-controlled creep tests (the depth creeps while the force is held): shear
+         # relaxation behind elastic, and the elastic null
+         "creep_shear": ("SR", SR, {"loading": CREEP}, "elastic"),
+         "creep_null": ("elastic", E, {"loading": CREEP}, "elastic")}
+
+
+def creep_force_csv(path):
+    """The force history of `CREEP` (time_s, force_N at 10 Hz) written to `path`; returns its duration (s)."""
+    import numpy as np
+    t = np.linspace(0.0, CREEP_FORCE[0][-1], int(round(CREEP_FORCE[0][-1] * 10)) + 1)
+    np.savetxt(path, np.c_[t, np.interp(t, *CREEP_FORCE)], delimiter=",", header="time_s,force_N", comments="")
+    return float(t[-1])
 
 
 def mesh_file(name, out):
@@ -177,6 +202,10 @@ def main(argv=None):
                 study["imaging"]["mode"] = "warp"
                 study["imaging"]["bmode_noise"] = args.bmode_noise
                 tag = f"{case}_warp{f'n{args.bmode_noise:g}' if args.bmode_noise else ''}_s{seed}"
+            if study.get("loading", {}).get("force_history") == CREEP["force_history"]:
+                # the volumes at the study's frame rate over the whole force record
+                cycle_s = creep_force_csv(args.out / CREEP["force_history"])
+                study["imaging"]["frames"] = int(round(cycle_s * study["imaging"]["frame_rate_hz"])) + 1
             if args.hold:
                 from liverinv.loading import ramp_history
                 lo = dict(study.get("loading", base["loading"]), hold=args.hold)
