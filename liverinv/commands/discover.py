@@ -134,9 +134,10 @@ def run(args) -> int:
         print(f"step {s}: {ds.law.values[s]}{' + ' + ds.added.values[s] if ds.added.values[s] else ''}: "
               f"Phi_vol {float(ds.phi_vol[s]):.4g}, Phi_ind {float(ds.phi_ind[s]):.4g}")
         value, sd = json.loads(str(ds.params_tracking_mesh.values[s])), json.loads(str(ds.param_sd.values[s]))
-        if final_mesh and s == ds.sizes["step"] - 1:
-            sd = {k: float("nan") for k in sd}      # the final fit's, printed below with its values
-        print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
+        if final_mesh and s == ds.sizes["step"] - 1:     # its SDs are the final fit's, printed below
+            print("    " + ", ".join(f"{k} {value[k]:.4g}" for k in sd) + " (on the tracking mesh; SDs below)")
+        else:
+            print("    " + ", ".join(f"{k} {value[k]:.4g} +- {v:.2g}" for k, v in sd.items()))
         for w in filter(None, str(ds.warnings.values[s]).split("\n")):
             print(f"warning: step {s} ({ds.law.values[s]}): {w}", file=sys.stderr)
     response = json.loads(ds.attrs.get("tracker_response") or "{}")
