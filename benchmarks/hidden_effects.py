@@ -186,6 +186,9 @@ def main(argv=None):
     ap.add_argument("--bmode-noise", type=float, default=0.0,
                     help="warp mode: std of additive noise on each B-mode volume (0..1 units; the speckle's own std "
                          "is about 0.35)")
+    ap.add_argument("--clean-indenter", action="store_true",
+                    help="a noise-free indenter record (synthesize's default; the noise levels are then estimated "
+                         "from the record, with their floors)")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     mesh, tmesh = mesh_file(args.mesh, args.out), mesh_file(args.truth_mesh, args.out)
@@ -202,6 +205,9 @@ def main(argv=None):
                 study["imaging"]["mode"] = "warp"
                 study["imaging"]["bmode_noise"] = args.bmode_noise
                 tag = f"{case}_warp{f'n{args.bmode_noise:g}' if args.bmode_noise else ''}_s{seed}"
+            if args.clean_indenter:
+                study["imaging"]["indenter"] = dict(study["imaging"]["indenter"], noise=False)
+                tag = tag.replace(f"_s{seed}", f"_ci_s{seed}")
             if study.get("loading", {}).get("force_history") == CREEP["force_history"]:
                 # the volumes at the study's frame rate over the whole force record
                 cycle_s = creep_force_csv(args.out / CREEP["force_history"])

@@ -7,7 +7,7 @@ import pytest
 
 from conftest import SIGMA_D, SIGMA_F, SIGMA_TRACK, noisy_measurements
 from liverinv.forward import ForwardModel
-from liverinv.identify.noise import (NoiseModel, kinks, piecewise_quadratic, reversals, smooth_record,
+from liverinv.identify.noise import (FORCE_MODEL_ERROR, NoiseModel, kinks, piecewise_quadratic, reversals, smooth_record,
                                     tracking_noise, white_noise_rms)
 from liverinv.identify.objective import Measurements, Objective
 from liverinv.identify.optimize import Fit
@@ -213,6 +213,28 @@ def test_block_inflation_measures_variance_and_correlation():
     lam = [block_inflation(Jg, np.sqrt(0.5) * (np.repeat(rng.normal(size=G), n // G) + rng.normal(size=n)),
                            groups, slice(None)) for _ in range(50)]
     assert np.mean(lam) == pytest.approx(10.5, rel=0.15)
+
+
+def test_a_noise_free_force_record_is_compared_no_closer_than_the_model_can_match_it():
+    """`synthesize`'s default record is noise-free. Its force level is 1 % of the force range
+    (the model's own error), not the second differences' estimate (about 1e-17 N); a depth
+    record keeps 1e-4 of its range; a bundle's paper-level 13 mN stays; a given level is taken
+    as it is. (With 1e-4 of the range for the force, the warped elastic null of seed 38 got three
+    false additions: docs/diagnosis.md, session 33.)"""
+    from liverinv.identify.noise import noise_model
+    from liverinv.imaging.bundle import Indenter
+    t = np.arange(0.0, 6.0 + 1e-9, 0.01)
+    depth = np.interp(t, [0.0, 3.0, 6.0], [0.0, 6e-3, 0.0])
+    force = 0.35 * (depth / 6e-3) ** 1.5
+    clean = noise_model(Indenter(t, depth, force), None, tracking_m=1e-6)
+    assert FORCE_MODEL_ERROR == 0.01
+    assert clean.force_N == pytest.approx(3.5e-3)
+    assert clean.depth_m == pytest.approx(6e-7)
+    assert "floor 0.01 of the range" in clean.sources["force_N"]
+    noisy = noise_model(Indenter(t, depth, force, SIGMA_D, SIGMA_F), None, tracking_m=1e-6)
+    assert (noisy.force_N, noisy.depth_m) == (SIGMA_F, SIGMA_D)
+    assert noisy.sources["force_N"] == "bundle"
+    assert noise_model(Indenter(t, depth, force), None, force_N=1e-4, tracking_m=1e-6).force_N == 1e-4
 
 
 def test_a_creep_record_breaks_at_the_ends_of_the_force_hold(noisy_case):
