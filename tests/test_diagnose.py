@@ -660,6 +660,46 @@ def test_a_sphere_that_is_the_trackers_is_vetoed_and_a_true_one_confirmed(tiny):
     assert "taken for the tracker's" in attrs["explanation"]
 
 
+def test_a_small_effect_that_is_the_trackers_is_vetoed_and_a_large_one_is_not_checked(tiny):
+    """The tracker-response check of a small effect (warped volumes; the warped SR null of seed
+    40 with a noise-free indenter record gained Darcy flow's trial, then the quartic bulk term):
+    elastic data whose tracked motion carries a planted tracker error shaped like bulk
+    relaxation (half the motion difference that k1 0.1, tau_k1 0.3 s make) pass bulk
+    relaxation's test with a predicted drop below STRONG_DROP; told that error, the check drops
+    it, and Darcy flow, and nothing is recommended; told the tracker adds nothing, bulk
+    relaxation stays. With the whole difference planted, bulk relaxation is predicted above
+    STRONG_DROP and is not checked (the tiny mesh's few node blocks keep its p above the warped
+    level, so the nominal level is used: which effects are checked does not depend on it)."""
+    from liverinv.diagnose.score import STRONG_DROP, checked_by_tracker_response, confirm_by_tracker_response
+    history = ramp_history(4e-3, 2e-3, frames=17, unload=True)
+    plain = tiny.run("elastic", E, history)
+    relaxing = tiny.run("BR", dict(E, D2=1e3, k1=0.1, tau_k1=0.3), history)
+    idx = np.arange(0, len(plain.time), 2)
+    shape = np.diff(relaxing.u.values[idx] - plain.u.values[idx], axis=0)
+    for size, checked in ((0.5, True), (1.0, False)):
+        data = noisy_measurements(plain, 0)
+        artefact = size * shape
+        data.u_of = data.u_of + artefact
+        obj = Objective(tiny, "elastic", data, noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
+        fit = Fit(obj, dict(C1=150.0, C2=6000.0, D1=1e-3))
+        out = fit.least_squares()
+        d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])
+        row = d["rows"][0]
+        assert d["recommended"] == row["effect"] == "bulk_relaxation"
+        assert (row["predicted_drop"] < STRONG_DROP) == checked, row
+        assert ("bulk_relaxation" in checked_by_tracker_response(d)) == checked
+        told = confirm_by_tracker_response(d, obj, out["params"], fit.names, fit.log_scale, lambda o, p: artefact)
+        if not checked:
+            assert told is d        # nothing small or geometric passed: no response, no solve
+            continue
+        assert told["recommended"] == "none" and "bulk_relaxation" in told["vetoed"]
+        assert told["tracker_check"]["effects"]["bulk_relaxation"]["p_value"] > 0.01
+        kept = confirm_by_tracker_response(d, obj, out["params"], fit.names, fit.log_scale,
+                                           lambda o, p: np.zeros_like(artefact))
+        assert kept["recommended"] == "bulk_relaxation" and "bulk_relaxation" not in kept["vetoed"]
+        assert kept["tracker_check"]["effects"]["bulk_relaxation"]["p_value"] == pytest.approx(row["p_value"], rel=1e-6)
+
+
 def test_an_addition_the_corrected_fit_returns_to_its_null_is_withdrawn(tiny):
     """discover withdraws its last addition when the fit on the tracked motion less the
     tracker's response puts the effect's amplitude within Z_WITHDRAW SDs of its null or on its

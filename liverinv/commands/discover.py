@@ -103,7 +103,8 @@ def run(args) -> int:
                                     "the second step also in place of an earlier addition's rival, and the lowest Phi "
                                     "is added (liverinv.diagnose.discover.N_TRIALS, TRIAL_EVALUATIONS); an inclusion's "
                                     "sphere is refined on a 2.5 mm grid first"
-                                    + ("; on these warped volumes an inclusion must also pass on the tracked motion "
+                                    + ("; on these warped volumes an inclusion, and any other effect predicted to remove less than "
+                                       "5 % of Phi_vol, must also pass on the tracked motion "
                                        "less the tracker's response to the fitted model "
                                        "(liverinv.diagnose.score.confirm_by_tracker_response)"
                                        if calibration["confirm_geometric"] else "")
