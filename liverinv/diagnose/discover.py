@@ -50,7 +50,7 @@ from ..identify.optimize import Fit
 from ..identify.search import SEARCH_PAIRS, merge_factor
 from ..laws import PARAMS, get_law
 from .effects import CATALOG, law_with
-from .score import ALPHA, MIN_DROP, confirm_by_tracker_response, diagnose, passes, refine_inclusion
+from .score import ALPHA, MIN_DROP, best_rows, confirm_by_tracker_response, diagnose, passes, refine_inclusion
 
 __all__ = ["discover", "final_fit", "fit_law", "rival_swaps", "trial_rows"]
 
@@ -80,9 +80,7 @@ def trial_rows(diagnosis, n=N_TRIALS) -> list:
     strain-stiffening data (neo-Hookean base, speckle seed 13) strain stiffening was predicted to
     remove 82 % of Phi_vol at p 1.9e-4 while a 3.5 mm sphere passed at 61 %; without a trial of its
     own it came third, after the sphere and bottom slip, and removed 93 % of what was left."""
-    best_row = {}
-    for r in diagnosis["rows"]:
-        best_row.setdefault(r["effect"], r)
+    best_row = best_rows(diagnosis["rows"])
     alpha = diagnosis.get("alpha", ALPHA)
     vetoed = diagnosis.get("vetoed", {})        # the tracker's (score.confirm_by_tracker_response)
     nominal = [r["effect"] for r in diagnosis["rows"] if alpha < ALPHA and r["effect"] not in vetoed

@@ -229,6 +229,15 @@ def _secant_solve(objective, params, model, full, fm, e, a):
     return far, a_try, n
 
 
+def best_rows(rows) -> dict:
+    """Each effect's best diagnosis row (its best scan point): the first of its rows, which are
+    in rank order."""
+    best = {}
+    for r in rows:
+        best.setdefault(r["effect"], r)
+    return best
+
+
 def passes(row, alpha=ALPHA, min_drop=MIN_DROP) -> bool:
     """Is the diagnosis `row` worth adding: physical, predicted to remove `min_drop` of Phi_vol
     and significant at `alpha`; or, under a level stricter than `ALPHA` (warped volumes), at
@@ -260,9 +269,9 @@ def recommend(rows, eligible, alpha=ALPHA, min_drop=MIN_DROP, vetoed=()) -> str:
     if not eligible:
         return "none"
     if alpha < ALPHA:
-        drop = {r["effect"]: r["predicted_drop"] for r in reversed(rows)}     # each effect's best row
+        best = best_rows(rows)
         nominal = [r["effect"] for r in rows if passes(r, ALPHA, min_drop) and r["effect"] not in vetoed]
-        if nominal and drop[nominal[0]] - drop[eligible[0]] >= min_drop:
+        if nominal and best[nominal[0]]["predicted_drop"] - best[eligible[0]]["predicted_drop"] >= min_drop:
             return nominal[0]
     return eligible[0]
 
@@ -295,9 +304,7 @@ def checked_by_tracker_response(d: dict) -> list:
     of seed 40, Darcy flow at 2.3 %, p 7.2e-5, after which the trials added the quartic bulk
     term (1.2 % actual drop; docs/diagnosis.md, session 34). A larger effect is not the
     tracker's and is not checked."""
-    rows = {}
-    for r in d["rows"]:
-        rows.setdefault(r["effect"], r)
+    rows = best_rows(d["rows"])
     return [e for e in dict.fromkeys(d["eligible"] + d["significant"])
             if CATALOG[e].geometric or (e in d["eligible"] and rows[e]["predicted_drop"] < STRONG_DROP)]
 
