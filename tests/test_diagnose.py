@@ -660,6 +660,46 @@ def test_a_sphere_that_is_the_trackers_is_vetoed_and_a_true_one_confirmed(tiny):
     assert "taken for the tracker's" in attrs["explanation"]
 
 
+def test_a_sphere_that_passes_on_the_finer_meshs_response_must_pass_on_the_tracking_meshs(tiny):
+    """With a finer model mesh (discover on warped volumes), the check takes the tracker's
+    response to the finer mesh's motion first; data made on the tracking mesh itself (a coarse
+    truth) carry none of the finer mesh's difference, so an effect that passes there is tested
+    again on the tracking mesh's own response. Planted: the finer mesh's response says the
+    tracker adds nothing (the sphere passes), the tracking mesh's that the sphere is the
+    tracker's: it is vetoed, on the tracking mesh's numbers. Told the tracker adds nothing on
+    either, the sphere is confirmed by both, at the cost of two responses and two checks."""
+    from liverinv.diagnose.score import confirm_by_tracker_response
+    data, artefact = sphere_artefact_data(tiny)
+    obj = Objective(tiny, "elastic", data, noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
+    fit = Fit(obj, dict(C1=150.0, C2=6000.0, D1=1e-3))
+    out = fit.least_squares()
+    d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])
+    assert d["recommended"] == "inclusion"
+    calls = []
+
+    def trackers(objective, params, predicted_by=None):
+        calls.append("finer mesh" if predicted_by is not None else "tracking mesh")
+        return np.zeros_like(artefact) if predicted_by is not None else artefact
+    vetoed = confirm_by_tracker_response(d, obj, out["params"], fit.names, fit.log_scale, trackers,
+                                         finer=lambda: obj)
+    assert calls == ["finer mesh", "tracking mesh"]
+    assert vetoed["recommended"] == "none" and "tracking mesh's response" in vetoed["vetoed"]["inclusion"]
+    check = vetoed["tracker_check"]
+    assert check["response_mesh"] == "finer mesh, then tracking mesh"
+    assert check["effects"]["inclusion"]["p_value"] == pytest.approx(d["rows"][0]["p_value"], rel=1e-6)
+    assert check["effects"]["inclusion"]["passes"] is False
+    assert check["effects"]["inclusion"]["tracking_mesh"]["p_value"] > 0.01
+    assert vetoed["n_solves"] == d["n_solves"] + 4
+    calls.clear()
+    confirmed = confirm_by_tracker_response(d, obj, out["params"], fit.names, fit.log_scale,
+                                            lambda o, p, predicted_by=None: np.zeros_like(artefact),
+                                            finer=lambda: obj)
+    assert confirmed["recommended"] == "inclusion" and confirmed["vetoed"] == {}
+    again = confirmed["tracker_check"]["effects"]["inclusion"]
+    assert again["passes"] and again["tracking_mesh"]["passes"]
+    assert again["tracking_mesh"]["p_value"] == pytest.approx(d["rows"][0]["p_value"], rel=1e-6)
+
+
 def test_a_small_effect_that_is_the_trackers_is_vetoed_and_a_large_one_is_not_checked(tiny):
     """The tracker-response check of a small effect (warped volumes; the warped SR null of seed
     40 with a noise-free indenter record gained Darcy flow's trial, then the quartic bulk term):
