@@ -622,18 +622,25 @@ def test_the_refined_inclusion_grid_keeps_the_scan_rules(tiny, monkeypatch):
     assert all(sphere_allowed(tiny.mesh, g) for g in inclusion_grid(tiny.mesh))
 
 
-def test_a_sphere_that_is_the_trackers_is_vetoed_and_a_true_one_confirmed(tiny):
+@pytest.fixture(scope="module")
+def sphere_artefact_fit(tiny):
+    """The elastic fit of `sphere_artefact_data` and its diagnosis: (objective, fit, its result,
+    the diagnosis, the planted tracker error)."""
+    data, artefact = sphere_artefact_data(tiny)
+    obj = Objective(tiny, "elastic", data, noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
+    fit = Fit(obj, dict(C1=150.0, C2=6000.0, D1=1e-3))
+    out = fit.least_squares()
+    return obj, fit, out, diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"]), artefact
+
+
+def test_a_sphere_that_is_the_trackers_is_vetoed_and_a_true_one_confirmed(sphere_artefact_fit):
     """The tracker-response check of an inclusion (warped volumes): homogeneous elastic data
     whose tracked motion carries a planted tracker error shaped like a 3x stiffer sphere (the
     motion difference such a sphere makes) pass the inclusion's test; told that error (the
     tracker's response to the fitted model carries it), the check drops the sphere and nothing
     is recommended. Told the tracker adds nothing, the same sphere is confirmed."""
     from liverinv.diagnose.score import confirm_by_tracker_response
-    data, artefact = sphere_artefact_data(tiny)
-    obj = Objective(tiny, "elastic", data, noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
-    fit = Fit(obj, dict(C1=150.0, C2=6000.0, D1=1e-3))
-    out = fit.least_squares()
-    d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])
+    obj, fit, out, d, artefact = sphere_artefact_fit
     assert d["recommended"] == "inclusion"
     seen = []
 
@@ -660,7 +667,7 @@ def test_a_sphere_that_is_the_trackers_is_vetoed_and_a_true_one_confirmed(tiny):
     assert "taken for the tracker's" in attrs["explanation"]
 
 
-def test_a_sphere_that_passes_on_the_finer_meshs_response_must_pass_on_the_tracking_meshs(tiny):
+def test_a_sphere_that_passes_on_the_finer_meshs_response_must_pass_on_the_tracking_meshs(sphere_artefact_fit):
     """With a finer model mesh (discover on warped volumes), the check takes the tracker's
     response to the finer mesh's motion first; data made on the tracking mesh itself (a coarse
     truth) carry none of the finer mesh's difference, so an effect that passes there is tested
@@ -669,11 +676,7 @@ def test_a_sphere_that_passes_on_the_finer_meshs_response_must_pass_on_the_track
     tracker's: it is vetoed, on the tracking mesh's numbers. Told the tracker adds nothing on
     either, the sphere is confirmed by both, at the cost of two responses and two checks."""
     from liverinv.diagnose.score import confirm_by_tracker_response
-    data, artefact = sphere_artefact_data(tiny)
-    obj = Objective(tiny, "elastic", data, noise=NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {}))
-    fit = Fit(obj, dict(C1=150.0, C2=6000.0, D1=1e-3))
-    out = fit.least_squares()
-    d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])
+    obj, fit, out, d, artefact = sphere_artefact_fit
     assert d["recommended"] == "inclusion"
     calls = []
 

@@ -178,8 +178,8 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     less the tracker's response to its fit (`corrected_final_fit`) and, with
     `confirm_inclusions` (warped volumes), an inclusion that passes, or any other effect that
     passes with a predicted drop below `score.STRONG_DROP`, is tested again on the
-    tracked motion less the tracker's response to the finer mesh's motion
-    (`score.tracker_and_mesh_error`, `score.confirm_by_tracker_response`). The last addition is withdrawn, and
+    tracked motion less the tracker's response to the finer mesh's motion, then to the tracking
+    mesh's (`score.tracker_and_mesh_error`, `score.confirm_by_tracker_response`). The last addition is withdrawn, and
     the step before it fitted again, when the corrected or final fit returns its amplitude to
     its null (`unresolved_addition`).
     Returns the steps (law, added effect, fit and diagnosis figures), the final and corrected
