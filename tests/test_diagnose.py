@@ -819,6 +819,15 @@ def test_the_withdrawal_rule_reads_the_most_accurate_fit_and_keeps_saturating_ef
     assert CATALOG["inclusion"].amplitude_z(bound["params"], bound["sd"]) is None
     assert unresolved_addition("inclusion", dict(inc_scale=50.0), None, bound) == ""
     assert "changed sign" in unresolved_addition("inclusion", dict(inc_scale=0.3), None, bound)
+    # a stiff sphere is judged on the log scale it is fitted on: the held-out 5x stiffer 5 mm
+    # sphere of seed 42 (warped, noise-free record), added at 36.38 and refitted on the finer
+    # mesh's corrected motion at 38.79, SD 14: 2.7 SD from 1 in inc_scale, 10.1 in ln inc_scale
+    stiff = dict(params=dict(inc_scale=38.79), sd=dict(inc_scale=14.0), mesh="final mesh")
+    assert CATALOG["inclusion"].amplitude_z(stiff["params"], stiff["sd"]) == pytest.approx(
+        np.log(38.79) * 38.79 / 14.0, rel=1e-9)
+    assert unresolved_addition("inclusion", dict(inc_scale=36.38), None, stiff) == ""
+    assert "ln inc_scale returned to 2.5 SD" in unresolved_addition(
+        "inclusion", dict(inc_scale=3.0), None, dict(params=dict(inc_scale=1.3), sd=dict(inc_scale=0.135)))
 
 
 def test_the_corrected_fit_takes_the_finer_mesh_unless_a_coarser_one_fits_better():

@@ -393,8 +393,9 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
 #: coarse mesh (contrast 0.28, p 9e-27, also on the coarse fit's corrected motion); refitted on
 #: the medium mesh's corrected motion its contrast was 1.043, SD 0.030: 1.4 SD. A true effect's
 #: in the recorded warped discoveries: Darcy flow 17-102 SD, bulk relaxation 48, strain
-#: stiffening 83-135, shear relaxation 288, the held-out 3x sphere of seed 15 5.0. 3, not 2:
-#: these SDs do not cover the truth on warped volumes (docs/diagnosis.md).
+#: stiffening 83-135, shear relaxation 288, the held-out 3x sphere of seed 15 5.0 (in inc_scale;
+#: a sphere is now judged on its log scale, `Effect.amplitude_of`, where a stiffer one lies
+#: further out). 3, not 2: these SDs do not cover the truth on warped volumes (docs/diagnosis.md).
 Z_WITHDRAW = 3.0
 
 
@@ -423,13 +424,14 @@ def unresolved_addition(effect: str, added: dict, final, corrected) -> str:
     if z >= Z_WITHDRAW and not flipped:
         return ""
     name = e.amplitude_param
+    amplitude = f"ln {name}" if e.geometric else e.amplitude
     where = ("on the tracked motion less the tracker's response" if fit is corrected
              else "on the finer model mesh")
     said = (f"{name} {fit['params'][name]:.4g}, SD {fit['sd'][name]:.2g}, against {added[name]:.4g} when added")
     if flipped:
-        return (f"refitted {where} ({fit.get('mesh') or 'final mesh'}), its amplitude {e.amplitude} changed sign "
+        return (f"refitted {where} ({fit.get('mesh') or 'final mesh'}), its amplitude {amplitude} changed sign "
                 f"({said}): the effect added is not there")
-    return (f"refitted {where} ({fit.get('mesh') or 'final mesh'}), its amplitude {e.amplitude} returned to "
+    return (f"refitted {where} ({fit.get('mesh') or 'final mesh'}), its amplitude {amplitude} returned to "
             f"{z:.2g} SD of its null ({said}; an addition must stay {Z_WITHDRAW:g} SD away)")
 
 
