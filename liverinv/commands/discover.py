@@ -106,8 +106,8 @@ def run(args) -> int:
                                     "sphere is refined on a 2.5 mm grid first"
                                     + ("; on these warped volumes an inclusion, and any other effect predicted to remove less than "
                                        f"{100 * STRONG_DROP:g} % of Phi_vol, must also pass on the tracked motion "
-                                       "less the tracker's response to the fitted model "
-                                       "(liverinv.diagnose.score.confirm_by_tracker_response)"
+                                       "less the tracker's response to the fitted model on the finer mesh, then "
+                                       "on the tracking mesh (liverinv.diagnose.score.confirm_by_tracker_response)"
                                        if calibration["confirm_geometric"] else "")
                                     + "; an addition whose refit lowers Phi by "
                                     "less than 1 % of Phi_vol is not kept; a record of more than 61 frames is "
