@@ -48,7 +48,7 @@ PARAMS = {p.name: p for p in [
     Param("k_punch", "Pa/m", 0.0, 1e12, "log", "tangential stiffness of the punch footprint per area "
           "(0: frictionless; above about 1e8: bonded)", (1e4, 1e9)),
     Param("c_bottom", "m/Pa", 0.0, 1e-2, "log", "tangential compliance of the bottom face per area "
-          "(0: bonded; above about 1e-4: sliding)", (1e-8, 1e-4)),
+          "(0: bonded; 1e-2, the bound: sliding, the sliding support's own; 1e-4 is 1.3 % stiffer)", (1e-8, 1e-4)),
     Param("inc_scale", "1", 0.02, 50.0, "log", "stiffness contrast of the fitted inclusion (C1 and C2 inside "
           "over outside; its sphere is the forward model's)", (0.2, 5.0)),
 ]}

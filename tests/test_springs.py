@@ -62,6 +62,35 @@ def test_spring_limits_are_the_contact_models(mesh):
     assert fixed < mid < bonded
 
 
+def test_a_sliding_bottom_does_not_turn_the_body(coarse_mesh):
+    """A sliding bottom holds the body's rigid in-plane motion without moving it: on the coarse
+    benchmark mesh (no bottom node on the axis) at 3 mm, the rigid translation and rotation
+    fitted to the tangential motion of the bottom's nodes (u_theta = w r - a sin(theta) + b
+    cos(theta); an axisymmetric motion has none) are 1.0e-3 and 9e-5 (w R) of its largest radial
+    motion (pinning the node nearest the axis, 2.6 mm off it, made them 0.17 and 0.17), and the
+    motion is the one of a 100 times softer spring to 0.9 um (the bottom-slip term's sliding
+    end). With pins on the axis (a column mesh with a corner there) see test_biphasic's undrained
+    compression, exact to 1e-7."""
+    from liverinv.fem.boundary import C_SLIDING, sliding_pins
+    from liverinv.fem.indentation import Indentation
+    from liverinv.laws import PARAMS
+    assert PARAMS["c_bottom"].upper == C_SLIDING and sliding_pins(coarse_mesh) is None
+    fm = ForwardModel(coarse_mesh, support="sliding")
+    h = ramp_history(3e-3, 2e-3, frames=5, unload=False)
+    u = fm.run("elastic", E, h).u.values[-1]
+    bottom = coarse_mesh.nodes("bottom")
+    X, ub = coarse_mesh.points[bottom, :2], u[bottom, :2]
+    r = np.hypot(X[:, 0], X[:, 1])
+    cos, sin = X[:, 0] / r, X[:, 1] / r
+    u_r = np.abs(ub[:, 0] * cos + ub[:, 1] * sin).max()
+    u_theta = ub[:, 1] * cos - ub[:, 0] * sin
+    (a, b, w), *_ = np.linalg.lstsq(np.column_stack([-sin, cos, r]), u_theta, rcond=None)
+    assert np.hypot(a, b) < 1e-2 * u_r and abs(w) * r.max() < 1e-2 * u_r
+    softer = Indentation(fm.space, dict(get_law("elastic").resolve(E), c_bottom=100 * C_SLIDING), support="compliant")
+    u_softer = solve_history(softer, h.time, h.value, "displacement").u[-1]
+    assert np.abs(u - u_softer).max() < 2e-6
+
+
 def test_biphasic_spring_limits_are_the_contact_models(mesh):
     """The same springs on the biphasic model (kappa 1e-8, 3 mm at 2 mm/s): at their nulls
     the frictionless / fixed model, stiff the bonded / sliding one. Measured: compliant at
@@ -128,9 +157,10 @@ def test_both_models_hold_the_same_components(mesh):
     indentation and biphasic models agrees for every contact and support, with the counts
     each condition implies (a bonded footprint holds 2 more components per footprint node, a
     fixed bottom 2 more per bottom node than a compliant one, a sliding bottom 3 in all more
-    than a compliant one), and a name that is not a choice is refused by both."""
+    than a compliant one where it is pinned, none where a spring holds it), and a name that is
+    not a choice is refused by both."""
     from liverinv.fem.biphasic import Biphasic
-    from liverinv.fem.boundary import constrained_components
+    from liverinv.fem.boundary import constrained_components, sliding_pins
     from liverinv.fem.indentation import Indentation
     from liverinv.fem.space import Space
     from liverinv.mesh import read_mesh
@@ -150,7 +180,7 @@ def test_both_models_hold_the_same_components(mesh):
     for support in ("fixed", "sliding", "compliant"):
         assert n_free["frictionless", support] - n_free["bonded", support] == 2 * n_foot
     assert n_free["bonded", "compliant"] - n_free["bonded", "fixed"] == 2 * n_bottom
-    assert n_free["bonded", "compliant"] - n_free["bonded", "sliding"] == 3
+    assert n_free["bonded", "compliant"] - n_free["bonded", "sliding"] == (0 if sliding_pins(m) is None else 3)
     fixed, _ = constrained_components(m, "frictionless", "fixed", side="confined")
     assert fixed[m.nodes("side"), :2].all()
     for kwargs, what in ((dict(punch="glued"), "punch contact"), (dict(support="free"), "support"),
