@@ -203,7 +203,7 @@ class Biphasic(SpringTerms):
         self._g1, self._tau_g1 = col(params.get("g1", 0.0)), col(params.get("tau_g1", 1.0))
         self._k1, self._tau_k1 = col(params.get("k1", 0.0)), col(params.get("tau_k1", 1.0))
         self.viscous = bool(np.any(self._g1 > 0) or np.any(self._k1 > 0))
-        self.k_punch, self.k_bottom = spring_stiffnesses(params, self.punch_spring, self.bottom_spring, self.support)
+        self.k_punch, self.k_bottom = spring_stiffnesses(params, self.punch_spring, self.support)
         self._kappa = col(params["kappa"])
         if np.any(~np.isfinite(self._kappa)) or np.any(self._kappa < 0):
             raise ValueError("kappa must be finite and >= 0")

@@ -2,9 +2,9 @@
 
 Unknowns are the free nodal displacements plus one punch depth d (positive into the tissue).
 Footprint nodes follow the punch: u_z = -d (frictionless: u_x, u_y free; bonded: u_x = u_y = 0).
-The bottom is fixed (u = 0) or sliding (u_z = 0, its rigid in-plane motion held as
-`boundary` says: by pins on the axis, or by a spring of compliance C_SLIDING). The reduced residual's punch entry is the indenter force (positive compressive)
-minus the applied force.
+The bottom is fixed (u = 0) or sliding (u_z = 0, its rigid in-plane motion held as `boundary`
+says: by pins on the axis, or by a spring of compliance C_SLIDING). The reduced residual's punch
+entry is the indenter force (positive compressive) minus the applied force.
 
 Partial friction and slip are tangential springs (`springs.FaceSpring`): the parameter
 ``k_punch`` (Pa/m) on the footprint of a frictionless punch (0: frictionless), and, with
@@ -49,10 +49,10 @@ def _scalar(v, name) -> float:
     return float(a[0])
 
 
-def spring_stiffnesses(params, punch_spring, bottom_spring, support) -> tuple[float, float]:
+def spring_stiffnesses(params, punch_spring, support) -> tuple[float, float]:
     """(k_punch, k_bottom) of the footprint's and the bottom's tangential springs from the
     parameters k_punch and c_bottom (k_bottom = 1 / (c_bottom + C_BONDED); a sliding bottom's
-    spring 1 / C_SLIDING), checked against the springs the model has."""
+    spring 1 / C_SLIDING), checked against the punch contact and the support."""
     k_punch = _scalar(params.get("k_punch", 0.0), "k_punch")
     c_bottom = _scalar(params.get("c_bottom", 0.0), "c_bottom")
     if k_punch < 0 or c_bottom < 0:
@@ -108,7 +108,7 @@ class Indentation(SpringTerms):
         self._g1, self._tau_g1 = p.get("g1", 0.0), p.get("tau_g1", 1.0)
         self._k1, self._tau_k1 = p.get("k1", 0.0), p.get("tau_k1", 1.0)
         self.viscous = bool(np.any(self._g1 > 0) or np.any(self._k1 > 0))
-        self.k_punch, self.k_bottom = spring_stiffnesses(params, self.punch_spring, self.bottom_spring, self.support)
+        self.k_punch, self.k_bottom = spring_stiffnesses(params, self.punch_spring, self.support)
 
     def with_params(self, params: dict) -> "Indentation":
         """A copy with other parameters, sharing the space and assembler."""
