@@ -17,6 +17,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from .fem.boundary import C_SLIDING
+
 __all__ = ["Param", "Law", "PARAMS", "LAWS", "get_law", "LawError"]
 
 
@@ -47,7 +49,7 @@ PARAMS = {p.name: p for p in [
     Param("kappa", "m^4/(N s)", 1e-15, 1e-3, "log", "Darcy permeability of the biphasic mixture", (1e-10, 1e-5)),
     Param("k_punch", "Pa/m", 0.0, 1e12, "log", "tangential stiffness of the punch footprint per area "
           "(0: frictionless; 1e12, the bound: bonded, to 0.06 um at 6 mm; 1e8 is 0.27 mm off)", (1e4, 1e9)),
-    Param("c_bottom", "m/Pa", 0.0, 1e-2, "log", "tangential compliance of the bottom face per area "
+    Param("c_bottom", "m/Pa", 0.0, C_SLIDING, "log", "tangential compliance of the bottom face per area "
           "(0: bonded; 1e-2, the bound: sliding, the sliding support's own; 1e-4 is 1.3 % stiffer)", (1e-8, 1e-4)),
     Param("inc_scale", "1", 0.02, 50.0, "log", "stiffness contrast of the fitted inclusion (C1 and C2 inside "
           "over outside; its sphere is the forward model's)", (0.2, 5.0)),

@@ -73,8 +73,7 @@ def test_a_sliding_bottom_does_not_turn_the_body(coarse_mesh):
     compression, exact to 1e-7."""
     from liverinv.fem.boundary import C_SLIDING, sliding_pins
     from liverinv.fem.indentation import Indentation
-    from liverinv.laws import PARAMS
-    assert PARAMS["c_bottom"].upper == C_SLIDING and sliding_pins(coarse_mesh) is None
+    assert sliding_pins(coarse_mesh) is None
     fm = ForwardModel(coarse_mesh, support="sliding")
     h = ramp_history(3e-3, 2e-3, frames=5, unload=False)
     u = fm.run("elastic", E, h).u.values[-1]
