@@ -124,7 +124,14 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          # force-controlled creep tests (the depth creeps while the force is held): shear
          # relaxation behind elastic, and the elastic null
          "creep_shear": ("SR", SR, {"loading": CREEP}, "elastic"),
-         "creep_null": ("elastic", E, {"loading": CREEP}, "elastic")}
+         "creep_null": ("elastic", E, {"loading": CREEP}, "elastic"),
+         # session 37, held out: a sphere with a second effect (two at once): a 3x stiffer 5 mm
+         # sphere under a bonded punch; a 4x stiffer 4.5 mm sphere off the scan's grid on a
+         # sliding bottom; a 3x softer 5 mm sphere in tissue with Darcy flow
+         "inclusion_friction": ("elastic", E, {**inclusion(3.0), "contact": {"punch": "bonded"}}, "elastic"),
+         "inclusion_slip": ("elastic", E, {**inclusion(4.0, 0.0045, (-0.004, 0.002, 0.020)),
+                                           "contact": {"support": "sliding"}}, "elastic"),
+         "poro_inclusion": ("PE", dict(E, kappa=1e-8), inclusion(1 / 3, 0.005, (0.0, -0.003, 0.021)), "elastic")}
 
 
 def creep_force_csv(path):
