@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 from .fem.boundary import C_SLIDING
 
-__all__ = ["Param", "Law", "PARAMS", "LAWS", "get_law", "LawError"]
+__all__ = ["Param", "Law", "PARAMS", "LAWS", "get_law", "LawError", "reading_notes"]
 
 
 class LawError(ValueError):
@@ -35,6 +35,7 @@ class Param:
     scale: str  # "log": optimized in log space; "linear": bounded fraction
     description: str
     search: tuple  # (low, high): range of the multi-start design (soft tissue, this test)
+    undetermined: str = ""   # how to read a fit that leaves it at a bound or undetermined (`reading_notes`)
 
 
 PARAMS = {p.name: p for p in [
@@ -48,12 +49,28 @@ PARAMS = {p.name: p for p in [
     Param("tau_k1", "s", 1e-4, 1e3, "log", "bulk relaxation time", (1e-2, 1e1)),
     Param("kappa", "m^4/(N s)", 1e-15, 1e-3, "log", "Darcy permeability of the biphasic mixture", (1e-10, 1e-5)),
     Param("k_punch", "Pa/m", 0.0, 1e12, "log", "tangential stiffness of the punch footprint per area "
-          "(0: frictionless; 1e12, the bound: bonded, to 0.06 um at 6 mm; 1e8 is 0.27 mm off)", (1e4, 1e9)),
+          "(0: frictionless; 1e12, the bound: bonded, to 0.06 um at 6 mm; 1e8 is 0.27 mm off)", (1e4, 1e9),
+          "at its bonded end the footprint does not slip and any stiffer value fits the same, so its SD says "
+          "nothing there: read it as a bonded punch"),
     Param("c_bottom", "m/Pa", 0.0, C_SLIDING, "log", "tangential compliance of the bottom face per area "
-          "(0: bonded; 1e-2, the bound: sliding, the sliding support's own; 1e-4 is 1.3 % stiffer)", (1e-8, 1e-4)),
+          "(0: bonded; 1e-2, the bound: sliding, the sliding support's own; 1e-4 is 1.3 % stiffer)", (1e-8, 1e-4),
+          "at its sliding end the bottom slides freely and any more compliant value fits the same, so its SD "
+          "says nothing there: read it as a sliding bottom"),
     Param("inc_scale", "1", 0.02, 50.0, "log", "stiffness contrast of the fitted inclusion (C1 and C2 inside "
-          "over outside; its sphere is the forward model's)", (0.2, 5.0)),
+          "over outside; its sphere is the forward model's)", (0.2, 5.0),
+          # the held-out 3x stiffer 5 mm sphere of seed 34 (warped) was added as a 3.5 mm sphere
+          # 6.1x stiffer; refitted with the sphere held at six sizes and places, Phi_vol moved by
+          # 2.4 % while the contrast went from 1.8 to 12.7 (docs/diagnosis.md, session 32)
+          "the data fix how much the sphere stiffens or softens the tissue where it lies, not its radius "
+          "and contrast apart: a smaller, stiffer sphere fits about as well as a larger, less stiff one, "
+          "so a contrast at the bound (50) or with a large SD says 'a stiffer region here', not that value"),
 ]}
+
+
+def reading_notes(names) -> list[str]:
+    """How to read the parameters `names` that a fit left at a bound or undetermined, for
+    those with a note (`Param.undetermined`): one line each, "NAME: note"."""
+    return [f"{n}: {PARAMS[n].undetermined}" for n in dict.fromkeys(names) if n in PARAMS and PARAMS[n].undetermined]
 
 # boundary terms that compose with any solid law ("LAW+term"): term -> (its parameters, defaults)
 TERMS = {

@@ -830,6 +830,33 @@ def test_the_withdrawal_rule_reads_the_most_accurate_fit_and_keeps_saturating_ef
         "inclusion", dict(inc_scale=3.0), None, dict(params=dict(inc_scale=1.3), sd=dict(inc_scale=0.135)))
 
 
+def test_a_fits_warnings_say_how_to_read_an_effects_amplitude_left_at_a_bound_or_undetermined():
+    """step_warnings on the last step of the held-out 3x stiffer 5 mm sphere under a bonded punch
+    (seed 45, warped): k_punch at its bonded bound, the sphere added as a 3.5 mm one 7.06x stiffer,
+    its contrast at the bound 50 after the final fit, with relative SD 0.61. Each amplitude gets
+    its parameter's note once (as `liverinv fit` does, `fitfile.parameter_warnings`); C1,
+    undetermined but no effect's amplitude, gets none; a determined fit inside its bounds gets no
+    warning at all."""
+    from types import SimpleNamespace
+
+    from liverinv.diagnose.discover import step_warnings
+    from liverinv.laws import PARAMS
+    law, _ = law_with("elastic", ["punch_friction", "inclusion"])
+    params = dict(E, k_punch=1e12, inc_scale=50.0)
+    fit = Fit(SimpleNamespace(law=law, fixed={}), params, names=["C1", "C2", "D1", "k_punch", "inc_scale"])
+    rel_sd = dict(C1=0.2, C2=0.05, D1=0.02, k_punch=560.0, inc_scale=0.61)
+    unc = dict(rel_sd=rel_sd, determined={n: v <= 0.1 for n, v in rel_sd.items()})
+    w = step_warnings(fit, params, unc)
+    assert w[:2] == ["ended at a bound: k_punch, inc_scale",
+                     "not determined by the data: C1 (relative SD 0.2), k_punch (relative SD 5.6e+02), "
+                     "inc_scale (relative SD 0.61)"]
+    assert w[2:] == [f"k_punch: {PARAMS['k_punch'].undetermined}", f"inc_scale: {PARAMS['inc_scale'].undetermined}"]
+    assert "bonded punch" in w[2] and "not its radius and contrast apart" in w[3]
+    inside = dict(params, k_punch=1e8, inc_scale=3.0)
+    sure = dict(rel_sd={n: 0.01 for n in rel_sd}, determined={n: True for n in rel_sd})
+    assert step_warnings(fit, inside, sure) == []
+
+
 def test_the_corrected_fit_takes_the_finer_mesh_unless_a_coarser_one_fits_better():
     """corrected_mesh_choice on planted residuals: 60 clusters of 40 rows, 80 % of each row's
     error shared in its cluster (tracking error is correlated over a centimetre), each mesh

@@ -45,6 +45,7 @@ import numpy as np
 from scipy import stats
 
 from ..identify.balance import balanced_fit
+from ..identify.fitfile import parameter_warnings
 from ..forward import Inclusion
 from ..identify.optimize import Fit
 from ..identify.search import SEARCH_PAIRS, merge_factor
@@ -156,13 +157,11 @@ def _with_user_fixed(law, fixed, user_fixed, effects):
 def step_warnings(fit, params, uncertainty) -> list[str]:
     """What a user must know before trusting a step's fit, as `liverinv fit` says it
     (`identify.fitfile.fit_warnings`): parameters at a bound of their search range, parameters
-    the data do not determine (from the step's diagnosis solve, `score.fitted_uncertainty`)."""
+    the data do not determine (from the step's diagnosis solve, `score.fitted_uncertainty`),
+    and how to read those that have a note (`fitfile.parameter_warnings`)."""
     bound = [n for n, b in zip(fit.names, fit.at_bound(fit.to_x([params[n] for n in fit.names]))) if b]
-    out = [f"ended at a bound: {', '.join(bound)}"] if bound else []
-    loose = [f"{n} (relative SD {uncertainty['rel_sd'][n]:.2g})" for n in fit.names if not uncertainty["determined"][n]]
-    if loose:
-        out.append(f"not determined by the data: {', '.join(loose)}")
-    return out
+    return parameter_warnings(bound, [(n, uncertainty["rel_sd"][n]) for n in fit.names
+                                      if not uncertainty["determined"][n]])
 
 
 def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fixed=None,

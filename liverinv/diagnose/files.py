@@ -222,7 +222,7 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
                                      [tracking[-1], final.get("params") or {}])
     total_sd = [{k: float(np.hypot(v, m.get(k, 0.0))) for k, v in s.get("sd", {}).items()} for s, m in zip(steps, model_sd)]
     if corrected:
-        steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + list(corrected.get("warnings", []))
+        steps[-1]["warnings"] = list(dict.fromkeys([*steps[-1].get("warnings", []), *corrected.get("warnings", [])]))
         attrs = dict(attrs, tracker_response=json.dumps(
             {k: corrected.get(k) for k in ("mesh", "mesh_test", "error_rms_m", "phi_common", "phi", "phi_vol", "phi_ind",
                                            "noise", "n_solves", "wall_s") if k in corrected}
@@ -231,7 +231,7 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
     if final:
         # on warped volumes the corrected fit, not the keep rule, chose the mesh
         said = [w for w in final.get("warnings", []) if not (corrected.get("params") and "explains the data worse" in w)]
-        steps[-1]["warnings"] = list(steps[-1].get("warnings", [])) + said
+        steps[-1]["warnings"] = list(dict.fromkeys([*steps[-1].get("warnings", []), *said]))   # (said once)
         attrs = dict(attrs, final_kept=int(bool(final.get("params")) and final.get("kept", True)),
                      final_mesh_test=json.dumps(final.get("mesh_test", {})),
                      final_params=json.dumps(final.get("params", {})),

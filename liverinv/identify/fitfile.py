@@ -9,7 +9,7 @@ import numpy as np
 import xarray as xr
 
 from ..fileio import provenance
-from ..laws import PARAMS
+from ..laws import PARAMS, reading_notes
 from .optimize import Fit
 from .uncertainty import gauss_newton
 
@@ -108,19 +108,23 @@ def fit_dataset(fit: Fit, result: dict, jacobian=None, attrs=None) -> xr.Dataset
     return ds
 
 
+def parameter_warnings(bound, loose) -> list[str]:
+    """The warnings of parameters `bound` (names at a bound of their range) and `loose` ((name,
+    relative SD) the data do not determine), with how to read those that have a note
+    (`laws.reading_notes`: a bonded punch, a sliding bottom, a sphere's contrast)."""
+    out = [f"ended at a bound: {', '.join(bound)}"] if bound else []
+    if loose:
+        out.append("not determined by the data: " + ", ".join(f"{n} (relative SD {sd:.2g})" for n, sd in loose))
+    return out + reading_notes([*bound, *(n for n, _ in loose)])
+
+
 def fit_warnings(ds) -> list[str]:
     """What a user must know before trusting a fit: parameters at a bound, parameters the
     data do not determine, an indenter residual far above its noise level, many forward solves
     that did not converge (the search's on merged frame pairs included)."""
-    out = []
     names = [str(p) for p in ds.param.values]
-    bound = [n for n, b in zip(names, ds.at_bound.values) if b]
-    if bound:
-        out.append(f"ended at a bound: {', '.join(bound)}")
-    loose = [f"{n} (relative SD {sd:.2g})" for n, sd, ok in zip(names, ds.rel_sd.values, ds.determined.values)
-             if not ok]
-    if loose:
-        out.append(f"not determined by the data: {', '.join(loose)}")
+    out = parameter_warnings([n for n, b in zip(names, ds.at_bound.values) if b],
+                             [(n, sd) for n, sd, ok in zip(names, ds.rel_sd.values, ds.determined.values) if not ok])
     if ds.attrs.get("objective") == "likelihood" and int(ds.n_ind) > 0:
         sigma = json.loads(ds.attrs["noise"])["force_N"]
         ratio = float(ds.rms_force) / sigma
