@@ -50,12 +50,12 @@ PARAMS = {p.name: p for p in [
     Param("kappa", "m^4/(N s)", 1e-15, 1e-3, "log", "Darcy permeability of the biphasic mixture", (1e-10, 1e-5)),
     Param("k_punch", "Pa/m", 0.0, 1e12, "log", "tangential stiffness of the punch footprint per area "
           "(0: frictionless; 1e12, the bound: bonded, to 0.06 um at 6 mm; 1e8 is 0.27 mm off)", (1e4, 1e9),
-          "at its bonded end the footprint does not slip and any stiffer value fits the same, so its SD says "
-          "nothing there: read it as a bonded punch"),
+          "near either end of its range the data cannot tell it from that end (frictionless near 0, bonded "
+          "near 1e12 Pa/m), so its SD says nothing there: read it as a frictionless or a bonded punch"),
     Param("c_bottom", "m/Pa", 0.0, C_SLIDING, "log", "tangential compliance of the bottom face per area "
           "(0: bonded; 1e-2, the bound: sliding, the sliding support's own; 1e-4 is 1.3 % stiffer)", (1e-8, 1e-4),
-          "at its sliding end the bottom slides freely and any more compliant value fits the same, so its SD "
-          "says nothing there: read it as a sliding bottom"),
+          "near either end of its range the data cannot tell it from that end (bonded near 0, sliding near "
+          "1e-2 m/Pa), so its SD says nothing there: read it as a bonded or a sliding bottom"),
     Param("inc_scale", "1", 0.02, 50.0, "log", "stiffness contrast of the fitted inclusion (C1 and C2 inside "
           "over outside; its sphere is the forward model's)", (0.2, 5.0),
           # the held-out 3x stiffer 5 mm sphere of seed 34 (warped) was added as a 3.5 mm sphere
@@ -63,7 +63,8 @@ PARAMS = {p.name: p for p in [
           # 2.4 % while the contrast went from 1.8 to 12.7 (docs/diagnosis.md, session 32)
           "the data fix how much the sphere stiffens or softens the tissue where it lies, not its radius "
           "and contrast apart: a smaller, stiffer sphere fits about as well as a larger, less stiff one, "
-          "so a contrast at the bound (50) or with a large SD says 'a stiffer region here', not that value"),
+          "so a contrast at a bound of its range (0.02, 50) or with a large SD says 'a stiffer (softer) region "
+          "here', not that value"),
 ]}
 
 

@@ -851,7 +851,7 @@ def test_a_fits_warnings_say_how_to_read_an_effects_amplitude_left_at_a_bound_or
                      "not determined by the data: C1 (relative SD 0.2), k_punch (relative SD 5.6e+02), "
                      "inc_scale (relative SD 0.61)"]
     assert w[2:] == [f"k_punch: {PARAMS['k_punch'].undetermined}", f"inc_scale: {PARAMS['inc_scale'].undetermined}"]
-    assert "bonded punch" in w[2] and "not its radius and contrast apart" in w[3]
+    assert "bonded near 1e12 Pa/m" in w[2] and "not its radius and contrast apart" in w[3]
     inside = dict(params, k_punch=1e8, inc_scale=3.0)
     sure = dict(rel_sd={n: 0.01 for n in rel_sd}, determined={n: True for n in rel_sd})
     assert step_warnings(fit, inside, sure) == []
