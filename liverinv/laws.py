@@ -55,7 +55,7 @@ PARAMS = {p.name: p for p in [
     Param("c_bottom", "m/Pa", 0.0, C_SLIDING, "log", "tangential compliance of the bottom face per area "
           "(0: bonded; 1e-2, the bound: sliding, the sliding support's own; 1e-4 is 1.3 % stiffer)", (1e-8, 1e-4),
           "near either end of its range the data cannot tell it from that end (bonded near 0, sliding near "
-          "1e-2 m/Pa), so its SD says nothing there: read it as a bonded or a sliding bottom"),
+          f"{C_SLIDING:g} m/Pa), so its SD says nothing there: read it as a bonded or a sliding bottom"),
     Param("inc_scale", "1", 0.02, 50.0, "log", "stiffness contrast of the fitted inclusion (C1 and C2 inside "
           "over outside; its sphere is the forward model's)", (0.2, 5.0),
           # the held-out 3x stiffer 5 mm sphere of seed 34 (warped) was added as a 3.5 mm sphere
