@@ -44,9 +44,9 @@ import time
 import numpy as np
 from scipy import stats
 
+from ..forward import Inclusion
 from ..identify.balance import balanced_fit
 from ..identify.fitfile import parameter_warnings
-from ..forward import Inclusion
 from ..identify.optimize import Fit
 from ..identify.search import SEARCH_PAIRS, merge_factor
 from ..laws import PARAMS, get_law
