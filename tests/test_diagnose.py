@@ -946,3 +946,47 @@ def test_the_model_form_spread_is_the_rms_difference_of_the_other_fits():
     assert m["C2"] == pytest.approx(np.sqrt(600.0 ** 2 / 2))
     assert m["D1"] == pytest.approx(np.sqrt(1e-8 / 2))
     assert model_form_sd(reported, sd, [dict(reported), {}]) == dict(C1=0.0, C2=0.0, D1=0.0)
+
+
+def test_an_addition_at_the_bound_on_its_nulls_side_is_withdrawn():
+    """A fit that leaves an effect's amplitude at a bound of its range gives no SD; the bound on
+    the null's side is the null: the quartic bulk term added at D2 3.19e-4 1/Pa (amplitude 1/D2
+    3.1e3 Pa) and refitted at D2's upper bound 1e3 1/Pa (amplitude 1e-3 Pa, the warped partial
+    friction data of seed 47 once punch friction was added) is withdrawn; the same term at the
+    lower bound (1e-9 1/Pa: the other side, far from the null) is kept."""
+    from liverinv.diagnose.discover import AT_NULL, unresolved_addition
+    added = dict(C1=212.9, D2=3.19e-4)
+    at_null = dict(params=dict(C1=200.0, D2=1e3), sd=dict(C1=1.0, D2=5.0), mesh="final mesh")
+    assert CATALOG["nonlinear_bulk"].amplitude_of(at_null["params"], at_null["sd"]) == (pytest.approx(1e-3), None)
+    why = unresolved_addition("nonlinear_bulk", added, None, at_null)
+    assert "ended at the bound of its range on the null's side (D2 1000, against 0.000319 when added)" in why
+    far = dict(at_null, params=dict(C1=200.0, D2=1e-9))
+    assert unresolved_addition("nonlinear_bulk", added, None, far) == ""
+    # a relaxation amplitude at its lower bound 0 is its null
+    relaxed = dict(params=dict(g1=0.0, tau_g1=0.5), sd=dict(g1=0.01, tau_g1=0.1))
+    assert "ended at the bound" in unresolved_addition("shear_relaxation", dict(g1=0.4, tau_g1=0.5), None, relaxed)
+
+
+def test_a_trial_cut_short_is_continued_when_its_candidate_was_predicted_to_remove_more():
+    """Warped partial punch friction (k_punch 1e7 Pa/m, seed 47): friction recommended at 62.6 %
+    of Phi_vol, the quartic bulk term at 52.2 %; after their 8-solve trials friction was at Phi
+    839.9 (its whole budget, started from an estimated 7e4 Pa/m) and the quartic term at 461.1
+    (4 solves). Friction's trial is continued; not a finished trial, a swap, a candidate
+    predicted to remove less than the best trial's, or the best trial itself."""
+    from types import SimpleNamespace
+    from liverinv.diagnose.discover import TRIAL_EVALUATIONS, unfinished_trials
+
+    def trial(drop, phi, n, swap=None):
+        return (dict(predicted_drop=drop), "law", {}, None, SimpleNamespace(history=[{}] * n),
+                dict(best=dict(phi=phi)), [], swap)
+    trials = {"punch_friction": trial(0.626, 839.9, TRIAL_EVALUATIONS),
+              "nonlinear_bulk": trial(0.522, 461.1, 4)}
+    assert unfinished_trials(trials, TRIAL_EVALUATIONS) == ["punch_friction"]
+    assert unfinished_trials(dict(trials, punch_friction=trial(0.626, 839.9, 5)), TRIAL_EVALUATIONS) == []
+    assert unfinished_trials(dict(trials, punch_friction=trial(0.50, 839.9, 8)), TRIAL_EVALUATIONS) == []
+    swapped = trial(0.626, 839.9, 8, swap=("bulk_relaxation", "poroelastic"))
+    assert unfinished_trials(dict(trials, punch_friction=swapped), TRIAL_EVALUATIONS) == []
+    assert unfinished_trials({"punch_friction": trials["punch_friction"]}, TRIAL_EVALUATIONS) == []
+    # the best trial is never continued, even at its budget and below another's prediction
+    best_at_budget = dict(trials, nonlinear_bulk=trial(0.7, 461.1, 8))
+    assert unfinished_trials(best_at_budget, TRIAL_EVALUATIONS) == []
