@@ -101,7 +101,7 @@ def unfinished_trials(trials, budget) -> list:
     near linear in its amplitude: on warped data with partial punch friction (k_punch 1e7 Pa/m,
     speckle seed 47) friction was recommended at 62.6 % from an estimated k_punch of 7e4 Pa/m
     (the saturating amplitude's estimate is the weak part of a secant), its 8-solve trial had
-    covered 15 % of Phi_vol against the quartic bulk term's 56 %, and the quartic term was
+    removed 19 % of Phi_vol against the quartic bulk term's 56 %, and the quartic term was
     added first. `trials`: key -> (row, ..., fit, result, ...) as in `discover`."""
     if len(trials) < 2:
         return []
