@@ -974,11 +974,11 @@ def test_a_trial_cut_short_is_continued_when_its_candidate_was_predicted_to_remo
     (4 solves). Friction's trial is continued; not a finished trial, a swap, a candidate
     predicted to remove less than the best trial's, or the best trial itself."""
     from types import SimpleNamespace
-    from liverinv.diagnose.discover import TRIAL_EVALUATIONS, unfinished_trials
+    from liverinv.diagnose.discover import TRIAL_EVALUATIONS, Trial, unfinished_trials
 
     def trial(drop, phi, n, swap=None):
-        return (dict(predicted_drop=drop), "law", {}, None, SimpleNamespace(history=[{}] * n),
-                dict(best=dict(phi=phi)), [], swap)
+        return Trial(dict(predicted_drop=drop), "law", {}, None, SimpleNamespace(history=[{}] * n),
+                     dict(best=dict(phi=phi)), [], swap)
     trials = {"punch_friction": trial(0.626, 839.9, TRIAL_EVALUATIONS),
               "nonlinear_bulk": trial(0.522, 461.1, 4)}
     assert unfinished_trials(trials, TRIAL_EVALUATIONS) == ["punch_friction"]

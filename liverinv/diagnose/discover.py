@@ -41,6 +41,7 @@ from __future__ import annotations
 import copy
 import logging
 import time
+from typing import NamedTuple
 
 import numpy as np
 from scipy import stats
@@ -60,7 +61,19 @@ log = logging.getLogger(__name__)
 
 N_TRIALS = 3               # candidates refitted when several pass the score test
 TRIAL_EVALUATIONS = 8      # solves of each trial refit
-CONTINUED_EVALUATIONS = 100   # solves of a trial continued (`unfinished_trials`)
+CONVERGED_EVALUATIONS = 100   # solves of a trial refitted to convergence: a lone one, or one continued
+
+
+class Trial(NamedTuple):
+    """A candidate's trial refit at a step of `discover`."""
+    row: dict              # the candidate's diagnosis row
+    law: str
+    fixed: dict
+    objective: object
+    fit: Fit
+    result: dict           # `Fit.least_squares`'s, with "best"
+    effects: list          # the effects of the trial's law
+    swap: tuple | None     # (added effect, its rival in its place), or None
 
 
 def _needs_multistart(law):
@@ -102,13 +115,13 @@ def unfinished_trials(trials, budget) -> list:
     speckle seed 47) friction was recommended at 62.6 % from an estimated k_punch of 7e4 Pa/m
     (the saturating amplitude's estimate is the weak part of a secant), its 8-solve trial had
     removed 19 % of Phi_vol against the quartic bulk term's 56 %, and the quartic term was
-    added first. `trials`: key -> (row, ..., fit, result, ...) as in `discover`."""
+    added first. `trials`: key -> `Trial`."""
     if len(trials) < 2:
         return []
-    best = min(trials, key=lambda e: trials[e][5]["best"]["phi"])
-    top = trials[best][0]["predicted_drop"]
-    return [e for e, t in trials.items() if e != best and t[7] is None and len(t[4].history) >= budget
-            and t[0]["predicted_drop"] > top]
+    best = min(trials, key=lambda e: trials[e].result["best"]["phi"])
+    top = trials[best].row["predicted_drop"]
+    return [e for e, t in trials.items() if e != best and t.swap is None and len(t.fit.history) >= budget
+            and t.row["predicted_drop"] > top]
 
 
 def rival_swaps(base_law, added, effect) -> list[tuple[str, str]]:
@@ -267,7 +280,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
         eligible = trial_rows(d)
         swaps = {row["effect"]: rival_swaps(base_law, added, row["effect"]) for row in eligible}
         n_trials = sum(1 + len(v) for v in swaps.values())
-        budget = TRIAL_EVALUATIONS if n_trials > 1 else 100
+        budget = TRIAL_EVALUATIONS if n_trials > 1 else CONVERGED_EVALUATIONS
         trials = {}
         t0 = time.perf_counter()
         for row in eligible:
@@ -292,26 +305,26 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
                                        progress=progress)
                 if t_res["best"] is not None:
                     key = row["effect"] if swap is None else f"{row['effect']} ({swap[1]} for {swap[0]})"
-                    trials[key] = (row, new_law, new_fixed, t_obj, t_fit, t_res, effects, swap)
+                    trials[key] = Trial(row, new_law, new_fixed, t_obj, t_fit, t_res, effects, swap)
                     if swap is None:
                         tried_params[row["effect"]] = t_res["best"]["params"]
-        n_trial_solves = {e: len(t[4].history) for e, t in trials.items()}
+        n_trial_solves = {e: len(t.fit.history) for e, t in trials.items()}
         for key in unfinished_trials(trials, budget):
-            row, new_law, new_fixed, t_obj, t_fit, t_res, effects, swap = trials[key]
-            c_fit, c_res = fit_law(t_obj.every(m), t_res["best"]["params"], design_points=0,
-                                   max_evaluations=CONTINUED_EVALUATIONS, progress=progress)
+            t = trials[key]
+            c_fit, c_res = fit_law(t.objective.every(m), t.result["best"]["params"], design_points=0,
+                                   max_evaluations=CONVERGED_EVALUATIONS, progress=progress)
             n_trial_solves[key] += len(c_fit.history)
-            if c_res["best"] is not None and c_res["best"]["phi"] < t_res["best"]["phi"]:
-                trials[key] = (row, new_law, new_fixed, t_obj, c_fit, c_res, effects, swap)
+            if c_res["best"] is not None and c_res["best"]["phi"] < t.result["best"]["phi"]:
+                trials[key] = t._replace(fit=c_fit, result=c_res)
                 tried_params[key] = c_res["best"]["params"]
         steps[-1]["wall_trials_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        steps[-1]["trials"] = {e: dict(phi=t[5]["best"]["phi"], phi_vol=t[5]["best"]["phi_vol"], n_solves=n_trial_solves[e],
+        steps[-1]["trials"] = {e: dict(phi=t.result["best"]["phi"], phi_vol=t.result["best"]["phi_vol"], n_solves=n_trial_solves[e],
                                        frame_pairs_merged=m) for e, t in trials.items()}
         if not trials:
             stopped = f"the refit with {', '.join(r['effect'] for r in eligible)} failed"
             break
-        key = min(trials, key=lambda e: trials[e][5]["best"]["phi"])
+        key = min(trials, key=lambda e: trials[e].result["best"]["phi"])
         kept_obj = obj         # the last kept step's objective, for the final fits if this addition is not kept
         before = (current_law, fixed, list(held), list(added), kept_obj, params)
         row, new_law, new_fixed, obj, fit, res, effects, swap = trials[key]
