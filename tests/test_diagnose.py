@@ -990,3 +990,43 @@ def test_a_trial_cut_short_is_continued_when_its_candidate_was_predicted_to_remo
     # the best trial is never continued, even at its budget and below another's prediction
     best_at_budget = dict(trials, nonlinear_bulk=trial(0.7, 461.1, 8))
     assert unfinished_trials(best_at_budget, TRIAL_EVALUATIONS) == []
+
+
+def test_an_earlier_addition_that_a_later_refit_returned_to_its_null_is_dropped(tiny):
+    """Warped partial punch friction (seed 47, before trials were continued): the quartic bulk
+    term was added first (D2 3.19e-4 1/Pa) and, once punch friction was added, refitted at D2's
+    upper bound 1e3 1/Pa, its null. Such an earlier addition is found (`returned_to_null`) and
+    the law without it, refitted, is kept when Phi stays within its AIC (`without_effects`):
+    on frictionless elastic data the law with D2 at its null bound and a punch spring loses the
+    quartic term at the same Phi; on data with the quartic term at 3e-4 it is not dropped."""
+    from types import SimpleNamespace
+    from liverinv.diagnose.discover import returned_to_null, without_effects
+    added_at = {"nonlinear_bulk": dict(E, D2=3.19e-4), "shear_relaxation": dict(E, g1=0.4, tau_g1=0.5)}
+    after = dict(E, D2=1e3, k_punch=1.03e7)
+    assert returned_to_null(["nonlinear_bulk", "punch_friction"], after, added_at) == ["nonlinear_bulk"]
+    # off its bound, or the addition just made (the last), or an effect that saturates: not here
+    assert returned_to_null(["nonlinear_bulk", "punch_friction"], dict(after, D2=50.0), added_at) == []
+    assert returned_to_null(["punch_friction", "nonlinear_bulk"], after, {**added_at, "punch_friction": after}) == []
+    assert returned_to_null(["shear_relaxation", "bulk_relaxation"], dict(E, g1=0.0, tau_g1=0.5, k1=0.5, tau_k1=0.3),
+                            added_at) == ["shear_relaxation"]
+    nm = NoiseModel(SIGMA_F, SIGMA_D, SIGMA_TRACK, {})
+    history = ramp_history(4e-3, 2e-3, frames=9, unload=True)
+    law, fixed = law_with("elastic", ["nonlinear_bulk", "punch_friction"])
+    assert (law, fixed) == ("elastic_D2+punch_friction", {})
+    for truth, d2, kept in [(("elastic", E), 1e3, True), (("elastic_D2", dict(E, D2=3e-4)), 3e-4, False)]:
+        data = noisy_measurements(tiny.run(*truth, history), 0)
+
+        def objective_for(lw, fx, noise):
+            return Objective(tiny, lw, data, fixed=fx, noise=noise or nm)
+        obj = objective_for(law, fixed, None)
+        params = dict(E, D2=d2, k_punch=1e2)
+        res = dict(best=dict(params=params, phi=float(obj(params).phi)))
+        out = without_effects(objective_for, "elastic", ["nonlinear_bulk", "punch_friction"], ["nonlinear_bulk"], {},
+                              None, obj, SimpleNamespace(names=list(params)), res)
+        if not kept:
+            assert out is None
+            continue
+        d_law, d_fixed, d_obj, d_fit, d_res, d_effects = out
+        assert (d_law, d_effects) == ("elastic+punch_friction", ["punch_friction"])
+        assert "D2" not in d_res["best"]["params"]
+        assert 0.9 * res["best"]["phi"] < d_res["best"]["phi"] <= res["best"]["phi"] * (1 + 1e-9)

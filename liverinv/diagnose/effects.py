@@ -30,7 +30,7 @@ import numpy as np
 
 from ..laws import LAWS, PARAMS, TERMS, get_law
 
-__all__ = ["Effect", "Linear", "Reciprocal", "CATALOG", "available_effects", "law_with", "TAU_GRID_S", "KAPPA_DRAINED", "KAPPA_SECANTS",
+__all__ = ["Effect", "Linear", "Reciprocal", "CATALOG", "at_bound", "available_effects", "law_with", "TAU_GRID_S", "KAPPA_DRAINED", "KAPPA_SECANTS",
            "sphere_allowed"]
 
 TAU_GRID_S = tuple(float(v) for v in np.logspace(-2, 1, 7))     # 0.01 .. 10 s, 2 per decade
@@ -167,7 +167,7 @@ class Effect:
         if self.far is not None or name not in params:
             return None
         p = float(params[name])
-        s = float(sd[name]) if sd and sd.get(name, 0) > 0 and not _at_bound(name, p) else None
+        s = float(sd[name]) if sd and sd.get(name, 0) > 0 and not at_bound(name, p) else None
         if self.geometric:      # the contrast on the log scale it is fitted on: ln of inc_scale
             return float(np.log(p)), (s / p if s else None)
         if isinstance(self.to_param, Reciprocal):       # amplitude 1/p - 1/null, its SD s / p^2
@@ -188,7 +188,7 @@ class Effect:
         return {**scan, self.to_param.param: self.to_param(theta)}
 
 
-def _at_bound(name: str, value: float, tol: float = 1e-3) -> bool:
+def at_bound(name: str, value: float, tol: float = 1e-3) -> bool:
     """Is `value` within `tol` of a bound of the parameter's range (`laws.PARAMS`; in log10
     for a log-scaled parameter, as `Fit.at_bound`)?"""
     par = PARAMS.get(name)

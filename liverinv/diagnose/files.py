@@ -243,9 +243,10 @@ def discovery_dataset(out: dict, **attrs) -> xr.Dataset:
             added=("step", [s["added"] for s in steps], {"long_name": "effect added at this step"}),
             effects=("step", [", ".join(s.get("effects", [])) for s in steps],
                      {"long_name": "the effects the model holds at this step (an added effect can have taken "
-                                   "the place of an earlier one's rival: see replaced)"}),
+                                   "the place of an earlier one's rival, or an earlier one dropped: see replaced)"}),
             replaced=("step", [""] + [n.get("replaced", "") for n in nxt[:-1]],
-                      {"long_name": "an earlier effect swapped for its rival at this step (E -> R), or empty"}),
+                      {"long_name": "an earlier effect swapped for its rival at this step (E -> R), or dropped because "
+                                   "this step's refit returned it to its null (E -> none), or empty"}),
             law=("step", [s["law"] for s in steps]),
             phi=("step", [s["phi"] for s in steps], {"units": "1"}),
             phi_vol=("step", [s["phi_vol"] for s in steps], {"units": "1"}),
