@@ -703,23 +703,23 @@ def test_a_sphere_that_passes_on_the_finer_meshs_response_must_pass_on_the_track
     assert again["tracking_mesh"]["p_value"] == pytest.approx(d["rows"][0]["p_value"], rel=1e-6)
 
 
-def test_a_small_effect_that_is_the_trackers_is_vetoed_and_a_large_one_is_not_checked(tiny):
-    """The tracker-response check of a small effect (warped volumes; the warped SR null of seed
-    40 with a noise-free indenter record gained Darcy flow's trial, then the quartic bulk term):
+def test_an_effect_that_is_the_trackers_is_vetoed_whatever_its_size(tiny):
+    """The tracker-response check (warped volumes; the warped SR null of seed 40 with a
+    noise-free indenter record gained Darcy flow's trial, then the quartic bulk term; the warped
+    elastic null of 100 volumes of seed 50 gained the quartic bulk term at a predicted 8.9 %):
     elastic data whose tracked motion carries a planted tracker error shaped like bulk
-    relaxation (half the motion difference that k1 0.1, tau_k1 0.3 s make) pass bulk
-    relaxation's test with a predicted drop below STRONG_DROP; told that error, the check drops
-    it, and Darcy flow, and nothing is recommended; told the tracker adds nothing, bulk
-    relaxation stays. With the whole difference planted, bulk relaxation is predicted above
-    STRONG_DROP and is not checked (the tiny mesh's few node blocks keep its p above the warped
-    level, so the nominal level is used: which effects are checked does not depend on it)."""
+    relaxation (half, then all of the motion difference that k1 0.1, tau_k1 0.3 s make) pass
+    bulk relaxation's test, predicted below and above STRONG_DROP; both are checked. Told that
+    error, the check drops it, and nothing is recommended; told the tracker adds nothing, bulk
+    relaxation stays at the p-value it had (the tiny mesh's few node blocks keep its p above the
+    warped level, so the nominal level is used: which effects are checked does not depend on it)."""
     from liverinv.diagnose.score import STRONG_DROP, checked_by_tracker_response, confirm_by_tracker_response
     history = ramp_history(4e-3, 2e-3, frames=17, unload=True)
     plain = tiny.run("elastic", E, history)
     relaxing = tiny.run("BR", dict(E, D2=1e3, k1=0.1, tau_k1=0.3), history)
     idx = np.arange(0, len(plain.time), 2)
     shape = np.diff(relaxing.u.values[idx] - plain.u.values[idx], axis=0)
-    for size, checked in ((0.5, True), (1.0, False)):
+    for size, small in ((0.5, True), (1.0, False)):
         data = noisy_measurements(plain, 0)
         artefact = size * shape
         data.u_of = data.u_of + artefact
@@ -729,12 +729,9 @@ def test_a_small_effect_that_is_the_trackers_is_vetoed_and_a_large_one_is_not_ch
         d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])
         row = d["rows"][0]
         assert d["recommended"] == row["effect"] == "bulk_relaxation"
-        assert (row["predicted_drop"] < STRONG_DROP) == checked, row
-        assert ("bulk_relaxation" in checked_by_tracker_response(d)) == checked
+        assert (row["predicted_drop"] < STRONG_DROP) == small, row
+        assert "bulk_relaxation" in checked_by_tracker_response(d)
         told = confirm_by_tracker_response(d, obj, out["params"], fit.names, fit.log_scale, lambda o, p: artefact)
-        if not checked:
-            assert told is d        # nothing small or geometric passed: no response, no solve
-            continue
         assert told["recommended"] == "none" and "bulk_relaxation" in told["vetoed"]
         assert told["tracker_check"]["effects"]["bulk_relaxation"]["p_value"] > 0.01
         kept = confirm_by_tracker_response(d, obj, out["params"], fit.names, fit.log_scale,

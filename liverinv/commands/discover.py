@@ -42,7 +42,6 @@ def run(args) -> int:
     from ..diagnose.discover import Z_WITHDRAW, discover
     from ..diagnose.effects import KAPPA_SECANTS
     from ..diagnose.files import discovery_dataset, imaging_calibration, tracker_error_for
-    from ..diagnose.score import STRONG_DROP
     from ..fileio import write_netcdf
     from ..identify.setup import objective_from_files
     from ..laws import LawError, get_law
@@ -104,8 +103,8 @@ def run(args) -> int:
                                     "the second step also in place of an earlier addition's rival, and the lowest Phi "
                                     "is added (liverinv.diagnose.discover.N_TRIALS, TRIAL_EVALUATIONS); an inclusion's "
                                     "sphere is refined on a 2.5 mm grid first"
-                                    + ("; on these warped volumes an inclusion, and any other effect predicted to remove less than "
-                                       f"{100 * STRONG_DROP:g} % of Phi_vol, must also pass on the tracked motion "
+                                    + ("; on these warped volumes every effect that passes (and a significant "
+                                       "sphere) must also pass on the tracked motion "
                                        "less the tracker's response to the fitted model on the finer mesh, then "
                                        "on the tracking mesh (liverinv.diagnose.score.confirm_by_tracker_response)"
                                        if calibration["confirm_geometric"] else "")

@@ -208,8 +208,8 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     (`files.imaging_calibration`); `tracker_error(objective, params)`: where given (warped
     volumes, `files.tracker_error_for`), the last step's law is refitted on the tracked motion
     less the tracker's response to its fit (`corrected_final_fit`) and, with
-    `confirm_inclusions` (warped volumes), an inclusion that passes, or any other effect that
-    passes with a predicted drop below `score.STRONG_DROP`, is tested again on the
+    `confirm_inclusions` (warped volumes), every effect that passes (and a significant sphere)
+    is tested again on the
     tracked motion less the tracker's response to the finer mesh's motion, then to the tracking
     mesh's (`score.tracker_and_mesh_error`, `score.confirm_by_tracker_response`). An earlier
     addition that a step's refit takes to the bound of its range on the null's side is dropped
