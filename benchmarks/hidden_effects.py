@@ -131,7 +131,12 @@ CASES = {"null": ("elastic", E, {}, "elastic"), "shear": ("SR", SR, {}, "elastic
          "inclusion_friction": ("elastic", E, {**inclusion(3.0), "contact": {"punch": "bonded"}}, "elastic"),
          "inclusion_slip": ("elastic", E, {**inclusion(4.0, 0.0045, (-0.004, 0.002, 0.020)),
                                            "contact": {"support": "sliding"}}, "elastic"),
-         "poro_inclusion": ("PE", dict(E, kappa=1e-8), inclusion(1 / 3, 0.005, (0.0, -0.003, 0.021)), "elastic")}
+         "poro_inclusion": ("PE", dict(E, kappa=1e-8), inclusion(1 / 3, 0.005, (0.0, -0.003, 0.021)), "elastic"),
+         # session 39, held out (two at once, chosen before the first run): bulk relaxation with
+         # the quartic bulk term (two volumetric effects); shear relaxation with partial punch
+         # friction behind elastic
+         "bulk_nlbulk": ("BR", dict(E, D2=3e-4, k1=0.5, tau_k1=0.3), {}, "elastic"),
+         "shear_friction_k1e7": ("SR+punch_friction", dict(SR, k_punch=1e7), {}, "elastic")}
 
 
 def creep_force_csv(path):
