@@ -1,5 +1,6 @@
 """The cost of one diagnosis in forward solves: on a discover run's data and base fit, time one
-plain solve of the fitted law (the faster of two, after one untimed) and one `diagnose` (all candidates, scans included).
+plain solve of the fitted law (the faster of two, after one untimed) and one `diagnose` (all candidates, scans
+included), from the fit's solution as in `discover` and without it.
 
     python benchmarks/diagnosis_cost.py --dir /work/runs/null --tag null_s1 \
         --mesh ../shared/benchmark/cylinder_coarse.msh
@@ -41,11 +42,17 @@ def main(argv=None):
         t = time.perf_counter()
         ev = obj(p)
         t_solve = min(t_solve, time.perf_counter() - t)
-    t = time.perf_counter()
-    out = diagnose(obj, p, names, [PARAMS[n].scale == "log" for n in names], float(ev.phi_vol))
-    t_diag = time.perf_counter() - t
-    print(f"{args.tag} ({law}): plain solve {t_solve:.1f} s, diagnosis {t_diag:.1f} s = {t_diag / t_solve:.2f} "
-          f"solves ({out['n_solves']} solves with sensitivities); recommended {out['recommended']}")
+    # as in `discover`, the fit's last solve (the optimum's) is the objective's latest: the
+    # diagnosis's solves start from it; then without it ("cold")
+    for cold in (False, True):
+        if cold:
+            obj._solved.clear()
+        t = time.perf_counter()
+        out = diagnose(obj, p, names, [PARAMS[n].scale == "log" for n in names], float(ev.phi_vol))
+        t_diag = time.perf_counter() - t
+        print(f"{args.tag} ({law}, {'cold' if cold else 'from the fit'}): plain solve {t_solve:.2f} s, diagnosis "
+              f"{t_diag:.2f} s = {t_diag / t_solve:.2f} solves ({out['n_solves']} solves with sensitivities); "
+              f"recommended {out['recommended']}")
 
 
 if __name__ == "__main__":

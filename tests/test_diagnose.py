@@ -55,8 +55,10 @@ def test_planted_effect_is_found_and_null_data_stay_silent(tiny, truth_law, trut
     out = fit.least_squares()
     d = diagnose(obj, out["params"], fit.names, fit.log_scale, out["best"]["phi_vol"])
     # the null solve of the diagnosis is the fit's optimum again (its bottom is a spring of
-    # compliance C_BONDED, for the slip direction: the fixed bottom to about 1e-8 in Phi)
-    assert d["phi"] == pytest.approx(out["best"]["phi"], rel=1e-6)
+    # compliance C_BONDED, for the slip direction: the fixed bottom to about 1e-8 in Phi),
+    # to the solver's tolerance: started from the fit's solution (`Objective.solution`) it
+    # stops at its first iterate within the tolerance (sliding-bottom data: Phi 1.6e-6 apart)
+    assert d["phi"] == pytest.approx(out["best"]["phi"], rel=5e-6)
     assert d["recommended"] == expected, d["rows"]
     # the fitted parameters' uncertainty from the diagnosis solve (its linearized sensitivities)
     # is the fit's own, from the least-squares sensitivities at the optimum
@@ -737,7 +739,9 @@ def test_an_effect_that_is_the_trackers_is_vetoed_whatever_its_size(tiny):
         kept = confirm_by_tracker_response(d, obj, out["params"], fit.names, fit.log_scale,
                                            lambda o, p: np.zeros_like(artefact))
         assert kept["recommended"] == "bulk_relaxation" and "bulk_relaxation" not in kept["vetoed"]
-        assert kept["tracker_check"]["effects"]["bulk_relaxation"]["p_value"] == pytest.approx(row["p_value"], rel=1e-6)
+        # (to the solver's tolerance: the diagnosis solved the fit with a spring on the bottom, for
+        # bottom slip, from the fit's solution; the check without it: p 3e-4 apart, relative)
+        assert kept["tracker_check"]["effects"]["bulk_relaxation"]["p_value"] == pytest.approx(row["p_value"], rel=1e-3)
 
 
 def test_an_addition_the_corrected_fit_returns_to_its_null_is_withdrawn(tiny):

@@ -63,6 +63,15 @@ class ReducedAssembler:
         out[m] = (self.sign[m] if q.ndim == 1 else self.sign[m, None]) * q[self.index[m]]
         return out
 
+    def reduce(self, full):
+        """Reduced unknowns (n_red,) of a full dof vector (a shorter vector: its leading dofs,
+        the rest 0), the inverse of `expand` for a vector that meets the constraints."""
+        full = np.asarray(full, float).ravel()
+        out = np.zeros(self.n_red)
+        m = np.flatnonzero(self.index[: full.size] >= 0)
+        out[self.index[m]] = self.sign[m] * full[m]
+        return out
+
     def vector(self, fe):
         """Reduced vector of element vectors fe (ne, m)."""
         return np.bincount(self._vec_idx, weights=self._vec_sign * fe[self._vec_mask], minlength=self.n_red)

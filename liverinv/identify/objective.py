@@ -157,6 +157,7 @@ class Objective:
         self.options = options or NewtonOptions()
         self.confidence_floor = confidence_floor
         self.K, self.N = data.u_of.shape[:2]
+        self._solved = {}      # the last few solves' nodal histories by their parameters (`solution`)
         if observation is None:
             self.to_data = self._interpolation(forward.mesh, data, outside_tol)
         elif (observation.N, observation.n_model) != (self.N, forward.mesh.n_nodes):
@@ -228,6 +229,18 @@ class Objective:
             sources={**self.noise.sources, "frames": f"frame pairs merged {m} at a time"})
         return Objective(self.forward, self.law, self.data.every(m), self.fixed, self.options, self.confidence_floor,
                          self.outside_tol, self.observation, noise)
+
+    def with_measurements(self, data: Measurements) -> "Objective":
+        """The same objective on other tracked motion (e.g. less the tracker's error), at the same
+        frame times and with the same indenter record, which drives the model: it shares the
+        forward model, the observation and the solves it remembers (`solution`)."""
+        same = all(np.array_equal(getattr(data, k), getattr(self.data, k)) for k in ("t0", "t1", "t_ind", "depth", "force"))
+        if not same:
+            raise ValueError("other measurements must have the same frame times and indenter record")
+        new = Objective(self.forward, self.law, data, self.fixed, self.options, self.confidence_floor,
+                        self.outside_tol, self.observation, self.noise)
+        new._solved = self._solved
+        return new
 
     def with_noise(self, noise) -> "Objective":
         """The same likelihood objective with other noise levels (e.g. block weights
@@ -333,22 +346,44 @@ class Objective:
                             for p in directions]
         except ValueError as e:
             return Evaluation(dict(params), False, np.nan, np.nan, np.nan, message=str(e))
-        return self.evaluate_model(params, model, variants, eps)
+        return self.evaluate_model(params, model, variants, eps, remember=full)
 
-    def evaluate_model(self, params: dict, model, variants=None, eps=None, options=None) -> Evaluation:
+    #: solved nodal histories kept (`solution`): the multi-start's and the refits' last points
+    REMEMBERED = 4
+
+    @staticmethod
+    def _key(full: dict):
+        return tuple((k, np.asarray(full[k], float).tobytes()) for k in sorted(full))
+
+    def solution(self, params: dict) -> np.ndarray | None:
+        """The nodal displacement history (n_drive, 3 n_nodes) of this law's solve at `params`
+        (merged with the fixed ones) if it is among the last `REMEMBERED` made by `__call__`,
+        else None: the guide of solves of models near it (`solve_history`'s `guide`), e.g.
+        the diagnosis's at a fit's optimum."""
+        return self._solved.get(self._key({**params, **self.fixed}))
+
+    def evaluate_model(self, params: dict, model, variants=None, eps=None, options=None, guide=None,
+                       remember=None) -> Evaluation:
         """Phi and the residuals of a built forward `model` (any parameter set, e.g. an
         extended law at its null values), with the residual's derivatives along the
         `variants` (the same model with parameters moved by `eps`) when given; `options`: Newton
-        options other than the objective's own (e.g. a looser tolerance)."""
+        options other than the objective's own (e.g. a looser tolerance); `guide`: a nearby
+        solution's nodal history (`solution`), where the solves start from; `remember`: the
+        full parameters of this law that `model` is, to keep its history by (`solution`)."""
         t_start = _time.perf_counter()
         d = self.data
         try:
             sens = Sensitivity(variants, eps) if variants is not None else None
             h = solve_history(model, self.t_drive, self.f_drive, self.control, options or self.options,
-                              sensitivity=sens)
+                              sensitivity=sens, guide=guide)
         except (ConvergenceError, FloatingPointError, ValueError) as e:
             return Evaluation(dict(params), False, np.nan, np.nan, np.nan,
                               wall_s=_time.perf_counter() - t_start, message=str(e))
+        if remember is not None:
+            self._solved.pop(key := self._key(remember), None)
+            self._solved[key] = h.u.reshape(len(h.u), -1)
+            while len(self._solved) > self.REMEMBERED:
+                self._solved.pop(next(iter(self._solved)))
         v_fem, at = self.model_motion(self.t_drive, self.at_data_nodes(h.u))
         r_vol = (self._w_vol * (self.v_of - v_fem)).ravel()
         r_ind = self._indenter_residual(h.depth, h.force)

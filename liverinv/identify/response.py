@@ -53,9 +53,7 @@ def _motion(objective: Objective, params: dict) -> np.ndarray:
 
 def with_corrected_data(objective: Objective, error: np.ndarray) -> Objective:
     """The same objective on the tracked motion less the tracker's error `error` (K, N, 3)."""
-    data = dataclasses.replace(objective.data, u_of=objective.data.u_of - error)
-    return Objective(objective.forward, objective.law, data, objective.fixed, objective.options,
-                     objective.confidence_floor, objective.outside_tol, objective.observation, objective.noise)
+    return objective.with_measurements(dataclasses.replace(objective.data, u_of=objective.data.u_of - error))
 
 
 def continue_on_tracker_response(objective: Objective, fit, result: dict, bundle_path, flow_path, mesh_path, *,
