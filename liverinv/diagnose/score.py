@@ -120,8 +120,9 @@ def diagnose(objective, params: dict, fitted: list, log_scale, phi_vol: float | 
     # elastic null of seed 34: 10.5-11.0 s overlapped, 4.95 + 5.15 s one after the other).
     jobs = [(e, a) for e in cands for a in e.secant_points()]
     # every solve starts from the fitted law's own solution where the fit left it (one of its last
-    # solves): on the warped elastic null of seed 44 (31 frames) the diagnosis then took 6.2-6.3 s
-    # against 7.4-7.6 s, its predicted drops equal to 4 digits
+    # solves): on the warped nulls of seeds 44 and 47 (31 frames) the diagnosis then took 4.1-4.5
+    # plain solves' time against 4.6-5.2, its predicted drops equal to 4 digits (docs/diagnosis.md,
+    # session 40)
     guide = objective.solution(params)
     log.info("diagnosis of %s: solves start from %s", objective.law,
              "the fit's solution" if guide is not None else "rest (the fit's solution is not the objective's)")

@@ -261,8 +261,8 @@ def solve_history(model: Indentation, times, values, control="displacement",
         term added: each step starts from the guide at its end plus the extrapolated
         difference of this solution from it (`_guided`), before the other guesses. On the
         diagnosis of the warped elastic null of seed 44 (31 frames) the secant solves then
-        took 0.65-0.85 of their time unguided, and the fitted law itself, solved again with
-        a spring on the bottom, 0.62 (2.1 iterations a step against 4.3).
+        took 0.56-0.88 of their time unguided, and the fitted law itself, solved again with
+        a spring on the bottom, 0.60-0.64 (2.1 iterations a step against 4.4).
 
     A model whose equilibrium depends on time beyond the punch (e.g. the registration
     springs of `liverinv.identify.register`) may define `set_time(t)`: it is called with the
