@@ -222,10 +222,7 @@ def discover(objective_for, base_law, start=None, max_steps=3, progress=None, fi
     held = []          # fitted inclusions added so far: every later model holds their spheres
 
     def holding(obj, more=()):   # the objective with the fitted spheres (and `more`)
-        if held or more:      # a copy: the caller's forward model may serve other objectives
-            obj.forward = copy.copy(obj.forward)
-            obj.forward.inclusions = [*obj.forward.inclusions, *held, *more]
-        return obj
+        return _with_inclusions(obj, [*obj.forward.inclusions, *held, *more]) if held or more else obj
 
     def objective(law, fixed, noise, more=()):
         return holding(objective_for(law, fixed, noise), more)
@@ -481,7 +478,7 @@ def unresolved_addition(effect: str, added: dict, final, corrected) -> str:
         return ""
     # no SD (at a bound): the sign alone, and the bound on the null's side (the quartic bulk
     # term's D2 at 1e3 1/Pa, amplitude 1e-3 Pa, where it was added at 3e3) is the null
-    z = abs(now[0]) / now[1] if now[1] else (0.0 if abs(now[0]) < AT_NULL * abs(before[0]) else np.inf)
+    z = abs(now[0]) / now[1] if now[1] else (0.0 if _shrunk_to_null(now, before) else np.inf)
     flipped = now[0] * before[0] < 0
     if z >= Z_WITHDRAW and not flipped:
         return ""
@@ -499,6 +496,19 @@ def unresolved_addition(effect: str, added: dict, final, corrected) -> str:
                 f"({said}): the effect added is not there")
     return (f"refitted {where} ({fit.get('mesh') or 'final mesh'}), its amplitude {amplitude} returned to "
             f"{z:.2g} SD of its null ({said}; an addition must stay {Z_WITHDRAW:g} SD away)")
+
+
+def _with_inclusions(obj, inclusions):
+    """`obj` with the spheres `inclusions` in its forward model, a copy of it (the caller's
+    forward model may serve other objectives)."""
+    obj.forward = copy.copy(obj.forward)
+    obj.forward.inclusions = list(inclusions)
+    return obj
+
+
+def _shrunk_to_null(now, before) -> bool:
+    """Is the amplitude `now` (an `Effect.amplitude_of` pair) below `AT_NULL` of `before`?"""
+    return abs(now[0]) < AT_NULL * abs(before[0])
 
 
 def returned_to_null(effects, params: dict, added_at: dict) -> list[str]:
@@ -520,7 +530,7 @@ def returned_to_null(effects, params: dict, added_at: dict) -> list[str]:
         now, before = e.amplitude_of(params), e.amplitude_of(added_at[name])
         if now is None or before is None:
             continue
-        if at_bound(e.amplitude_param, params[e.amplitude_param]) and abs(now[0]) < AT_NULL * abs(before[0]):
+        if at_bound(e.amplitude_param, params[e.amplitude_param]) and _shrunk_to_null(now, before):
             out.append(name)
     return out
 
@@ -533,9 +543,7 @@ def without_effects(objective_for, base_law, effects, dropped, user_fixed, noise
     effects = [e for e in effects if e not in dropped]
     law, fixed = law_with(base_law, effects)
     fixed = _with_user_fixed(law, fixed, user_fixed, effects)
-    d_obj = objective_for(law, fixed, noise)
-    d_obj.forward = copy.copy(d_obj.forward)
-    d_obj.forward.inclusions = list(obj.forward.inclusions)
+    d_obj = _with_inclusions(objective_for(law, fixed, noise), obj.forward.inclusions)
     start = {k: v for k, v in res["best"]["params"].items() if k in get_law(law).free and k not in fixed}
     d_fit, d_res = fit_law(d_obj, start, design_points=0, progress=progress)
     if d_res["best"] is None or d_res["best"]["phi"] - res["best"]["phi"] >= 2 * (len(fit.names) - len(d_fit.names)):

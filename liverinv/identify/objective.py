@@ -227,7 +227,11 @@ class Objective:
         noise = None if self.noise is None else replace(
             self.noise, tracking_m=self.noise.tracking_m * np.sqrt(m),
             sources={**self.noise.sources, "frames": f"frame pairs merged {m} at a time"})
-        return Objective(self.forward, self.law, self.data.every(m), self.fixed, self.options, self.confidence_floor,
+        return self._on(self.data.every(m), noise)
+
+    def _on(self, data: Measurements, noise) -> "Objective":
+        """This objective's law, forward model, options and observation on other `data` and `noise`."""
+        return Objective(self.forward, self.law, data, self.fixed, self.options, self.confidence_floor,
                          self.outside_tol, self.observation, noise)
 
     def with_measurements(self, data: Measurements) -> "Objective":
@@ -237,8 +241,7 @@ class Objective:
         same = all(np.array_equal(getattr(data, k), getattr(self.data, k)) for k in ("t0", "t1", "t_ind", "depth", "force"))
         if not same:
             raise ValueError("other measurements must have the same frame times and indenter record")
-        new = Objective(self.forward, self.law, data, self.fixed, self.options, self.confidence_floor,
-                        self.outside_tol, self.observation, self.noise)
+        new = self._on(data, self.noise)
         new._solved = self._solved
         return new
 
