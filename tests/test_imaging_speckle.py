@@ -102,3 +102,40 @@ def test_trilinear_kernel_is_scipys_linear_interpolation_to_rounding(shape):
     assert np.abs(got - ref).max() < 1e-13 * np.abs(field).max()
     with pytest.raises(ValueError, match="trilinear"):
         trilinear(field[..., 0], pts)
+
+
+@pytest.mark.parametrize("shape", [(9, 7, 11), (6, 2, 5), (1, 4, 3)])
+def test_cubic_kernel_is_scipys_mirrored_cubic_spline_to_the_bit(shape):
+    # the compiled sampler of the warp and of the tracker against map_coordinates(order=3,
+    # prefilter=False, mode="mirror"): inside, at the edges, beyond the grid by several periods
+    from scipy import ndimage
+
+    from liverinv.imaging.kernels import cubic_mirror
+    from liverinv.parallel import map_coordinates
+    rng = np.random.default_rng(3)
+    coef = ndimage.spline_filter(rng.random(shape).astype(np.float32), order=3, output=np.float32, mode="mirror")
+    n = np.array(shape) - 1.0
+    pts = np.concatenate([rng.uniform(-0.3, 1.3, size=(3000, 3)) * n,
+                          rng.uniform(-5.0, 5.0, size=(2000, 3)) * np.maximum(n, 1.0),
+                          rng.integers(-2, 3, size=(500, 3)) + rng.choice([0.0, 1e-12, -1e-12, 0.5], size=(500, 3)),
+                          n + rng.integers(-2, 3, size=(500, 3)) + rng.choice([0.0, 1e-12, -1e-12, 0.5], size=(500, 3))])
+    ref = ndimage.map_coordinates(coef, pts.T, order=3, prefilter=False, mode="mirror")
+    got = cubic_mirror(coef, pts)
+    assert got.dtype == ref.dtype and np.array_equal(got, ref)
+    assert np.array_equal(map_coordinates(coef, pts, order=3, prefilter=False, mode="mirror"), ref)
+    with pytest.raises(ValueError, match="cubic_mirror"):
+        cubic_mirror(coef[0], pts)
+
+
+def test_inverse_map_of_the_moving_voxels_is_the_iteration_to_the_bit():
+    # warp_volume's compiled fixed point against inverse_map at the voxels that move
+    from liverinv.imaging.kernels import inverse_map_at_voxels
+    shape = (10, 9, 8)
+    X = np.stack(np.meshgrid(*[np.arange(n) for n in shape], indexing="ij"), -1).astype(float)
+    u = 0.4 * np.sin(X / 3.0) + 0.1 * np.cos(X[..., ::-1] / 2.0)
+    u[2:5, :, 1:3] = 0.0                                            # voxels that do not move
+    moving = np.flatnonzero(np.abs(u).max(axis=-1).ravel() > 1e-6)
+    for it in (1, 2, 6):
+        index, Xm = inverse_map_at_voxels(u, it, 1e-6)
+        assert np.array_equal(index, moving)
+        assert np.array_equal(Xm, inverse_map(u, X.reshape(-1, 3)[moving], iterations=it, at_voxels=moving))

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from .kernels import trilinear
+from .kernels import cubic_mirror, inverse_map_at_voxels, trilinear
 from .speckle import Transducer, log_compress, random_scatterers, render_iq
 from .weights import VoxelWeights
 
@@ -76,7 +76,11 @@ def _sample_grid(field_grid: np.ndarray, v: np.ndarray, order: int = 1) -> np.nd
                      for c in range(field_grid.shape[-1])], axis=1)
 
 
-def inverse_map(u_grid_vox: np.ndarray, x_vox: np.ndarray, iterations: int = 6,
+#: iterations of the inverse map's fixed point in `warp_volume` (see `inverse_map`)
+INVERSE_MAP_ITERATIONS = 6
+
+
+def inverse_map(u_grid_vox: np.ndarray, x_vox: np.ndarray, iterations: int = INVERSE_MAP_ITERATIONS,
                 at_voxels: np.ndarray | None = None) -> np.ndarray:
     """Reference position X (voxels) of current positions x (voxels), ``x = X + u(X)``, by the
     fixed-point iteration ``X <- x - u(X)`` (converges for displacement gradients < 1).
@@ -107,11 +111,10 @@ def warp_volume(reference: np.ndarray, u_grid_vox: np.ndarray, coef: np.ndarray 
     g_shape = reference.shape
     if coef is None:
         coef = ndimage.spline_filter(np.asarray(reference, np.float32), order=3, output=np.float32, mode="mirror")
-    moving = np.flatnonzero(np.abs(u_grid_vox).max(axis=-1).ravel() > 1e-6)
-    x = np.stack(np.unravel_index(moving, g_shape), 1).astype(float)
-    X = inverse_map(u_grid_vox, x, at_voxels=moving)
+    # inverse_map(u, x, at_voxels=moving) at every voxel that moves, in one compiled pass
+    moving, X = inverse_map_at_voxels(u_grid_vox, INVERSE_MAP_ITERATIONS, 1e-6)
     out = np.asarray(reference, np.float32).ravel().copy()
-    out[moving] = ndimage.map_coordinates(coef, X.T, order=3, prefilter=False, mode="mirror")
+    out[moving] = cubic_mirror(coef, X)      # ndimage.map_coordinates(coef, X.T, order=3, mode="mirror")
     return out.reshape(g_shape)
 
 
