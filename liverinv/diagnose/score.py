@@ -344,8 +344,9 @@ def confirm_by_tracker_response(d: dict, objective, params: dict, fitted: list, 
     stiffer 3.5 mm sphere 6 mm under the punch (predicted drop 3.6 %, p 1e-8) that is not in the
     truth (refitted, its Phi_vol went below the truth's own: 34.7 against 39.3); on the corrected
     motion it had p 0.0057. A true 10x sphere passed both (p 1e-22, then 1e-17). The check costs
-    the response (one plain solve and the tracking of every volume, 70 s for 31 volumes on the
-    coarse benchmark mesh) and one solve with the effect's directions per effect checked."""
+    the response (one plain solve, the warp and the tracking of every volume: 43 s for 100
+    volumes on the coarse benchmark mesh, session 41) and one solve with the effect's directions
+    per effect checked."""
     geo = checked_by_tracker_response(d)
     if not geo or d["recommended"] == "none":
         return d
