@@ -79,22 +79,3 @@ def test_the_objective_remembers_its_last_solves(tiny, history):
     # a model built and solved apart (the diagnosis's secants) is not remembered
     obj.evaluate_model(free, tiny.model("SR", SR))
     assert obj.solution(free) is None
-
-
-def test_the_tracker_response_takes_the_fits_own_solve(tiny, history, monkeypatch):
-    """`identify.response._motion` (the model's motion the tracker's response renders) is the
-    objective's remembered solve at the fit's parameters, and the solve made apart elsewhere:
-    the same motion to the solver's tolerance."""
-    from liverinv.identify import response
-    run = tiny.run("SR", SR, history)
-    obj = Objective(tiny, "SR", Measurements.from_run(run))
-    known = dict(SR)
-    obj(known)
-    remembered = response._motion(obj, known)
-    calls = []
-    monkeypatch.setattr(response, "solve_history", lambda *a, **k: calls.append(1) or solve_history(*a, **k))
-    assert np.array_equal(response._motion(obj, known), remembered) and not calls
-    solved = response._motion(obj, dict(known, tau_g1=known["tau_g1"] * (1 + 1e-12)))
-    assert calls == [1]
-    assert remembered.shape == solved.shape == (len(obj.t_drive), tiny.mesh.n_nodes, 3)
-    assert np.abs(solved - remembered).max() <= 1e-6 * np.abs(remembered).max()

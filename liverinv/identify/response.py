@@ -46,12 +46,7 @@ def tracker_error(objective: Objective, params: dict, bundle, flow, tracking_mes
 
 
 def _motion(objective: Objective, params: dict) -> np.ndarray:
-    """The model's nodal motion (time, node, 3) at `params` over the objective's drive: the
-    objective's own solve there where it remembers one (`Objective.solution`: a fit's optimum is
-    among its last solves, the same model, drive and options), else solved."""
-    known = objective.solution(params)
-    if known is not None:
-        return known.reshape(len(known), -1, 3)
+    """The model's nodal motion (time, node, 3) at `params` over the objective's drive."""
     model = objective.forward.model(objective.law, {**params, **objective.fixed})
     return np.asarray(solve_history(model, objective.t_drive, objective.f_drive, objective.control, objective.options).u)
 
