@@ -91,6 +91,10 @@ class RowBlocks:
         return np.concatenate(_map(lambda block: block @ x, blocks), axis=0)
 
 
+#: the options of a prefiltered, mirrored cubic B-spline: `map_coordinates` takes the compiled kernel
+_CUBIC_MIRROR = dict(order=3, prefilter=False, mode="mirror")
+
+
 def map_coordinates(values: np.ndarray, points: np.ndarray, **options) -> np.ndarray:
     """`scipy.ndimage.map_coordinates(values, points.T, **options)` for points (m, ndim),
     in chunks of points on the threads (the same values to the bit). A cubic B-spline of a 3-D
@@ -110,9 +114,6 @@ def map_coordinates(values: np.ndarray, points: np.ndarray, **options) -> np.nda
     if parts < 2 or len(points) < MIN_SPLIT:
         return sample(points)
     return np.concatenate(_map(sample, np.array_split(points, parts)))
-
-
-_CUBIC_MIRROR = dict(order=3, prefilter=False, mode="mirror")
 
 
 _BESIDE = None     # the work of `beside`, seen by its forked worker as it was at the fork

@@ -14,6 +14,11 @@ inverse map's fixed point samples the displacement grid five times per volume
 each voxel's iterations run one after the other on its own coordinates, with the same
 arithmetic as `trilinear` (so the same numbers to the bit as five calls of it), without the
 (m, 3) arrays of voxel positions and iterates that the five passes wrote and read again.
+
+`cubic_mirror` is ``scipy.ndimage.map_coordinates(coef, points.T, order=3, prefilter=False,
+mode="mirror")`` on a 3-D grid with scipy's weights, edge folding and summation order (the same
+numbers to the bit), 2.5x faster: the warp's sampling of the reference volume and the tracker's
+of the next frame (through `parallel.map_coordinates`).
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["trilinear", "inverse_map_at_voxels"]
+__all__ = ["trilinear", "inverse_map_at_voxels", "cubic_mirror"]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -144,8 +149,9 @@ def _cubic_axis(x, n, index, weight):
     """The 4 grid indices (mirrored at the edges) and cubic B-spline weights of the
     coordinate x along an axis of n voxels."""
     x = _mirror_coordinate(x, n)
-    first = int(np.floor(x)) - 1
-    f = x - np.floor(x)
+    below = np.floor(x)
+    first = int(below) - 1
+    f = x - below
     g = 1.0 - f
     weight[1] = (f * f * (f - 2.0) * 3.0 + 4.0) / 6.0
     weight[2] = (g * g * (g - 2.0) * 3.0 + 4.0) / 6.0
