@@ -255,7 +255,7 @@ class Biphasic(SpringTerms):
         else:
             S_solid, a_g, a_k = S_iso + S_vol, 1.0, 1.0
         S = S_solid - Jp[..., None, None] * Ci
-        fe_u = sp.internal_force(F @ S)
+        fe_u = sp.internal_force(F, S)
         kdt = self._kappa * dt * J * sp.dV                                 # (ne, nq)
         CiGp = (Ci @ Gp[..., None])[..., 0]
         fe_p = -s * (((J - state.J_n) * sp.dV) @ self.Np

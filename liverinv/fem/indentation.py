@@ -144,7 +144,7 @@ class Indentation(SpringTerms):
         F = kin.F
         S_iso, S_vol, terms, J = hyperelastic_terms(kin, self._C1, self._C2, self._D1, self._D2inv)
         S, a_g, a_k = self._relaxed_stress(S_iso, S_vol, dt, state)
-        r = self.asm.vector(sp.internal_force(F @ S)) + self.spring_force(q)
+        r = self.asm.vector(sp.internal_force(F, S)) + self.spring_force(q)
         springs = self._springs()
         K = None
         if tangent:
@@ -180,7 +180,7 @@ class Indentation(SpringTerms):
         for sign, material in ((1.0, theirs), (-1.0, mine)):
             rows = [v[elements] if np.ndim(v) == 2 else v for v in material]
             S_iso, S_vol, _, _ = hyperelastic_terms(F, *rows)
-            fe[elements] += sign * self.space.internal_force(F @ (S_iso + S_vol), elements)
+            fe[elements] += sign * self.space.internal_force(F, S_iso + S_vol, elements)
         return self.asm.vector(fe)
 
     def _material(self):

@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
+
 __all__ = ["Kinematics", "hyperelastic_split", "hyperelastic_terms", "element_stiffness", "full_tangents",
            "first_elasticity", "relaxation_factors", "QLVState"]
 
@@ -54,27 +56,6 @@ def _det(F):
     return (F[..., 0, 0] * (F[..., 1, 1] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 1])
             - F[..., 0, 1] * (F[..., 1, 0] * F[..., 2, 2] - F[..., 1, 2] * F[..., 2, 0])
             + F[..., 0, 2] * (F[..., 1, 0] * F[..., 2, 1] - F[..., 1, 1] * F[..., 2, 0]))
-
-
-def _inv_sym(C):
-    """Inverses of symmetric 3x3 matrices by cofactors (much faster than batched LAPACK
-    for thousands of tiny matrices)."""
-    a, b, c = C[..., 0, 0], C[..., 1, 1], C[..., 2, 2]
-    d, e, f = C[..., 0, 1], C[..., 1, 2], C[..., 0, 2]
-    A = b * c - e * e
-    B = f * e - d * c
-    Cc = d * e - b * f
-    D = a * c - f * f
-    E = d * f - a * e
-    G = a * b - d * d
-    det = a * A + d * B + f * Cc
-    inv = np.empty_like(C)
-    inv[..., 0, 0], inv[..., 1, 1], inv[..., 2, 2] = A, D, G
-    inv[..., 0, 1] = inv[..., 1, 0] = B
-    inv[..., 0, 2] = inv[..., 2, 0] = Cc
-    inv[..., 1, 2] = inv[..., 2, 1] = E
-    inv /= det[..., None, None]
-    return inv
 
 
 def hyperelastic_split(F, C1, C2, D1, D2inv=0.0, tangent=True):
@@ -123,14 +104,9 @@ class Kinematics:
     __slots__ = ("F", "Ci", "J", "I1", "Jm23", "dI1b")
 
     def __init__(self, F):
-        C = np.swapaxes(F, -1, -2) @ F
         self.F = F
-        self.Ci = _inv_sym(C)
-        self.J = _det(F)  # signed: an inverted point has J < 0 and gives NaN stresses
-        self.I1 = np.trace(C, axis1=-2, axis2=-1)
-        with np.errstate(invalid="ignore"):
-            self.Jm23 = self.J ** (-2.0 / 3.0)
-        self.dI1b = self.Jm23[..., None, None] * (_I - (self.I1 / 3.0)[..., None, None] * self.Ci)
+        # signed J: an inverted point has J < 0 and gives NaN stresses (`fem.kernels`)
+        self.Ci, self.J, self.I1, self.Jm23, self.dI1b = kernels.kinematics(F)
 
 
 def hyperelastic_terms(F, C1, C2, D1, D2inv=0.0):
@@ -159,33 +135,10 @@ def element_stiffness(G, dV, F, S, t: dict, a_g, a_k):
     G (ne, nq, 10, 3) shape-function gradients, dV (ne, nq), a_g/a_k the relaxation
     factors multiplying the isochoric/volumetric tangents.
     """
-    ne, nq = dV.shape
-    Ft = np.swapaxes(F, -1, -2)
-    Ci = t["Ci"]
-    vd = G @ t["d"] @ Ft                      # (ne, nq, 10, 3)
-    vI = G @ Ft
-    vC = G @ Ci @ Ft
-    c_dd = a_g * t["c_dd"] * dV
-    c_IC = a_g * t["c_ICi"] * dV
-    c_CC = (a_g * t["c_CiCi_iso"] + a_k * t["c_CiCi_vol"]) * dV
-    c_sym = 0.5 * (a_g * t["c_sym_iso"] + a_k * t["c_sym_vol"]) * dV
-    V = np.stack([vd, vI, vC], axis=-1).reshape(ne, nq, 30, 3)
-    W = np.stack([c_dd[..., None] * V[..., 0], c_IC[..., None] * V[..., 2],
-                  c_IC[..., None] * V[..., 1] + c_CC[..., None] * V[..., 2]], axis=-1)
-    K = np.swapaxes(W, 1, 2).reshape(ne, 30, nq * 3) @ np.swapaxes(V, 2, 3).reshape(ne, nq * 3, 30)
-    # swapped outer product of v_C: K[a, i, b, k] += c_sym v_C[a, k] v_C[b, i]
-    vCw = (c_sym[..., None, None] * vC).reshape(ne, nq, 30)
-    Ks = np.swapaxes(vCw, 1, 2) @ vC.reshape(ne, nq, 30)  # [(a, k), (b, i)]
-    K += Ks.reshape(ne, 10, 3, 10, 3).transpose(0, 1, 4, 3, 2).reshape(ne, 30, 30)
-    # Kronecker terms: c_sym (G Ci G^T)_ab (F Ci F^T)_ik + (G S G^T)_ab delta_ik
-    Gt = np.swapaxes(G, -1, -2)
-    M = (G @ Ci @ Gt).reshape(ne, nq, 100)
-    N = (F @ Ci @ Ft).reshape(ne, nq, 9) * c_sym[..., None]
-    Kk = np.swapaxes(M, 1, 2) @ N                         # (ne, 100, 9) [(a, b), (i, k)]
-    Kg = ((G @ S @ Gt) * dV[..., None, None]).sum(axis=1)  # (ne, 10, 10)
-    Kk = Kk.reshape(ne, 10, 10, 3, 3) + Kg[..., None, None] * _I
-    K += Kk.transpose(0, 1, 3, 2, 4).reshape(ne, 30, 30)
-    return K
+    dV = np.asarray(dV, dtype=float)
+    return kernels.element_stiffness(
+        G, dV, F, S, t["d"], t["Ci"], a_g * t["c_dd"] * dV, a_g * t["c_ICi"] * dV,
+        (a_g * t["c_CiCi_iso"] + a_k * t["c_CiCi_vol"]) * dV, 0.5 * (a_g * t["c_sym_iso"] + a_k * t["c_sym_vol"]) * dV)
 
 
 def first_elasticity(F, S, CC):

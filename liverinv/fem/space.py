@@ -12,6 +12,7 @@ import logging
 import numpy as np
 
 from ..mesh import TetMesh
+from . import kernels
 
 __all__ = ["Space", "RULES"]
 
@@ -84,11 +85,9 @@ class Space:
         self.edofs = (3 * local_nodes[:, :, None] + np.arange(3)).reshape(len(cells), 30)
         self.n_dofs = 3 * mesh.n_nodes
         self.nq = nq
-        # dN_a/dX_J as one (10, nq * 3) matrix per element (and times dV): F and the internal
-        # force are then one small matrix product per element, 2-3x faster on the coarse
-        # benchmark mesh than a product per quadrature point
+        # dN_a/dX_J dV as one (10, nq * 3) matrix per element: the internal forces of many stress
+        # changes at once are one small matrix product per element (`linearized`)
         G = np.transpose(self.dNdX, (0, 2, 1, 3))
-        self._G_flat = np.ascontiguousarray(G.reshape(len(cells), 10, 3 * nq))
         self._GdV_flat = np.ascontiguousarray((G * self.dV[:, None, :, None]).reshape(len(cells), 10, 3 * nq))
         vol = self.dV.sum()
         log.debug("space: %d elements, %d quadrature points each, volume %.6e", len(cells), nq, vol)
@@ -116,12 +115,12 @@ class Space:
             raise ValueError("some scikit-fem dofs have no node in the mesh file")
         return out
 
-    def internal_force(self, P, elements=None) -> np.ndarray:
+    def internal_force(self, P, S=None, elements=None) -> np.ndarray:
         """Element internal force vectors (ne, 30) of first Piola-Kirchhoff stresses P
-        (ne, nq, 3, 3): f_ai = sum_q P_iJ dN_a/dX_J dV; of the `elements` only, if given."""
-        G = self._GdV_flat if elements is None else self._GdV_flat[elements]
-        ne = len(P)
-        return (G @ np.swapaxes(P, 2, 3).reshape(ne, 3 * self.nq, 3)).reshape(ne, 30)
+        (ne, nq, 3, 3): f_ai = sum_q P_iJ dN_a/dX_J dV; with S, of P = F S (P then holds F);
+        of the `elements` only, if given (`kernels.internal_force`)."""
+        G, dV = (self.dNdX, self.dV) if elements is None else (self.dNdX[elements], self.dV[elements])
+        return kernels.internal_force(G, dV, P, S)
 
     def volume(self) -> float:
         return float(self.dV.sum())
@@ -132,11 +131,5 @@ class Space:
 
     def deformation_gradient(self, u: np.ndarray, elements=None) -> np.ndarray:
         """F = I + Grad u at every quadrature point, (ne, nq, 3, 3); of the `elements` only, if given."""
-        conn, G = (self.conn, self._G_flat) if elements is None else (self.conn[elements], self._G_flat[elements])
-        ue = u[conn]  # (ne, 10, 3)
-        ne = len(conn)
-        F = (np.swapaxes(ue, 1, 2) @ G).reshape(ne, 3, self.nq, 3).transpose(0, 2, 1, 3).copy()  # (ne, nq, 3, 3)
-        F[..., 0, 0] += 1.0
-        F[..., 1, 1] += 1.0
-        F[..., 2, 2] += 1.0
-        return F
+        conn, G = (self.conn, self.dNdX) if elements is None else (self.conn[elements], self.dNdX[elements])
+        return kernels.deformation_gradient(u, conn, G)
