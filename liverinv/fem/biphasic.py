@@ -65,6 +65,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .assembly import ReducedAssembler
 from .boundary import constrained_components, displacement_numbering, face_springs
 from .indentation import Evaluation, spring_stiffnesses
@@ -245,9 +246,9 @@ class Biphasic(SpringTerms):
         F = sp.deformation_gradient(full[:n3].reshape(-1, 3))
         S_iso, S_vol, t, J = hyperelastic_terms(F, self._C1, self._C2, self._D1, self._D2inv)
         pe = s * full[n3:][self.p_elem]                                    # (ne, 4)
-        p = pe @ self.Np.T                                                 # (ne, nq)
-        Gp = (pe[:, None, None, :] @ self.dNpdX)[..., 0, :]                # Grad p (ne, nq, 3)
         Ci = t["Ci"]
+        kdt = self._kappa * dt * J * sp.dV                                 # (ne, nq)
+        p, Gp, fe_p = kernels.darcy_terms(pe, self.Np, self.dNpdX, J, state.J_n, sp.dV, kdt, Ci, s)
         Jp = J * p
         if self.viscous:
             S_solid, a_g, a_k = qlv_relaxed_stress(S_iso, S_vol, dt, state, self._g1, self._tau_g1,
@@ -256,10 +257,6 @@ class Biphasic(SpringTerms):
             S_solid, a_g, a_k = S_iso + S_vol, 1.0, 1.0
         S = S_solid - Jp[..., None, None] * Ci
         fe_u = sp.internal_force(F, S)
-        kdt = self._kappa * dt * J * sp.dV                                 # (ne, nq)
-        CiGp = (Ci @ Gp[..., None])[..., 0]
-        fe_p = -s * (((J - state.J_n) * sp.dV) @ self.Np
-                     + ((self.dNpdX @ (kdt[..., None] * CiGp)[..., None])[..., 0]).sum(axis=1))
         r = self.asm.vector(np.concatenate([fe_u, fe_p], axis=1)) + self.spring_force(q)
         K = None
         if tangent:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["kinematics", "element_stiffness", "deformation_gradient", "internal_force"]
+__all__ = ["kinematics", "element_stiffness", "deformation_gradient", "internal_force", "darcy_terms"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -186,3 +186,41 @@ def internal_force(G, dV, F, S=None):
     _internal_force(np.ascontiguousarray(G), np.ascontiguousarray(dV, dtype=float), np.ascontiguousarray(F, dtype=float),
                     np.ascontiguousarray(S, dtype=float), fe)
     return fe
+
+
+@numba.njit(cache=True, nogil=True)
+def _darcy_terms(pe, Np, dNpdX, J, J_n, dV, kdt, Ci, s, p, Gp, fe_p):
+    ne, nq, npn, _ = dNpdX.shape
+    w = np.empty(3)
+    for e in range(ne):
+        fe_p[e, :] = 0.0
+        for q in range(nq):
+            pq = 0.0
+            for b in range(npn):
+                pq += pe[e, b] * Np[q, b]
+            p[e, q] = pq
+            for j in range(3):
+                g = 0.0
+                for b in range(npn):
+                    g += pe[e, b] * dNpdX[e, q, b, j]
+                Gp[e, q, j] = g
+            ci = Ci[e, q]
+            for j in range(3):      # kappa dt J dV C^-1 Grad p
+                w[j] = kdt[e, q] * (ci[j, 0] * Gp[e, q, 0] + ci[j, 1] * Gp[e, q, 1] + ci[j, 2] * Gp[e, q, 2])
+            dj = (J[e, q] - J_n[e, q]) * dV[e, q]
+            for b in range(npn):
+                fe_p[e, b] -= s * (dj * Np[q, b] + dNpdX[e, q, b, 0] * w[0] + dNpdX[e, q, b, 1] * w[1]
+                                   + dNpdX[e, q, b, 2] * w[2])
+
+
+def darcy_terms(pe, Np, dNpdX, J, J_n, dV, kdt, Ci, s):
+    """The biphasic model's pore pressure p (ne, nq) and Grad p (ne, nq, 3) at the points from
+    the element pressures pe (ne, npn) (shape functions Np (nq, npn), gradients dNpdX (ne, nq,
+    npn, 3)), and its scaled mass residual (ne, npn):
+    fe_p_b = -s sum_q [(J - J_n) dV N_b + kdt (C^-1 Grad p) . Grad N_b], kdt = kappa dt J dV."""
+    ne, nq, npn, _ = dNpdX.shape
+    p, Gp, fe_p = np.empty((ne, nq)), np.empty((ne, nq, 3)), np.empty((ne, npn))
+    c = lambda x: np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=float), (ne, nq)))
+    _darcy_terms(np.ascontiguousarray(pe, dtype=float), np.ascontiguousarray(Np, dtype=float), np.ascontiguousarray(dNpdX),
+                 c(J), c(J_n), c(dV), c(kdt), np.ascontiguousarray(Ci), float(s), p, Gp, fe_p)
+    return p, Gp, fe_p
