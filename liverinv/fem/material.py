@@ -1,4 +1,5 @@
-r"""Constitutive kernels, vectorized over quadrature points.
+r"""Constitutive kernels, vectorized over quadrature points (the kinematics and the element
+stiffness compiled, `fem.kernels`).
 
 Reduced polynomial strain energy (seed paper Eq. 9, Abaqus convention)::
 
