@@ -122,7 +122,8 @@ def element_stiffness(G, dV, F, S, d, Ci, c_dd, c_IC, c_CC, c_sym):
                             + c_sym vC_ak vC_bi + M_ab N_ik + dV (G S G^T)_ab delta_ik
 
     with vd = G d F^T, vI = G F^T, vC = G Ci F^T, M = G Ci G^T, N = c_sym F Ci F^T; G (ne, nq,
-    10, 3) shape-function gradients, dV (ne, nq), F, S, d, Ci (ne, nq, 3, 3), the coefficients
+    10, 3) shape-function gradients, dV (ne, nq), F, S, d, Ci (ne, nq, 3, 3; S, d and Ci symmetric,
+    as a PK2 stress and the tangent terms are: only the upper node blocks are summed), the coefficients
     broadcastable to (ne, nq) (`material.element_stiffness` folds dV and the relaxation factors
     into them)."""
     shape = np.shape(dV)
